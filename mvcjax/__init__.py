@@ -1,0 +1,25 @@
+"""mvcjax: fast, differentiable 2D shape deformation with mean value coordinates."""
+
+from . import datasets as datasets
+from ._coordinates import mean_value_coordinates as mean_value_coordinates
+from ._energy import (
+    Energy as Energy,
+    Weights as Weights,
+    handle_residual as handle_residual,
+    laplacian_residual as laplacian_residual,
+    length_residual as length_residual,
+    mvc_residual as mvc_residual,
+    residuals as residuals,
+    total_energy as total_energy,
+)
+from ._rig import ControlMesh as ControlMesh, Rig as Rig, ShapeMesh as ShapeMesh, Skinning as Skinning
+from ._shape import Shape as Shape
+from ._solvers import (
+    AbstractSolver as AbstractSolver,
+    FixedG as FixedG,
+    GaussNewton as GaussNewton,
+    LevenbergMarquardt as LevenbergMarquardt,
+    SolveInfo as SolveInfo,
+)
+
+__version__ = "0.1.0"

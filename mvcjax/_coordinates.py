@@ -1,0 +1,198 @@
+"""Mean value and barycentric coordinates, point location, and the polygons of eq. 1."""
+
+from __future__ import annotations
+
+import numpy as np
+from jaxtyping import Bool, Float, Int
+
+
+def mean_value_coordinates(
+    points: Float[np.ndarray, "n 2"],
+    polygons: Float[np.ndarray, "n k 2"],
+    valid: Bool[np.ndarray, "n k"] | None = None,
+    eps: float = 1e-12,
+) -> Float[np.ndarray, "n k"]:
+    """Mean value coordinates of each point in its own polygon (Floater 2003, eq. 1).
+
+    Uses the stable form of Hormann and Floater (2006), `tan(alpha_i / 2) = det_i /
+    (r_i r_{i+1} + d_i)`. A point on a polygon vertex gets that vertex's one-hot weight,
+    a point on an edge the linear interpolation along the edge: both are exact, never NaN.
+
+    Args:
+        points: `(n, 2)` query points.
+        polygons: `(n, k, 2)` one polygon per point, vertices in order (either orientation),
+            padded at the end where `valid` is false.
+        valid: `(n, k)` which entries of `polygons` are real vertices (default: all).
+        eps: relative tolerance for "on a vertex" and "on an edge".
+
+    Returns:
+        `(n, k)` weights: zero on padding, summing to 1, with `sum_i w_i v_i = point`.
+    """
+    points = np.asarray(points, np.float64)
+    polygons = np.asarray(polygons, np.float64)
+    n, k, _ = polygons.shape
+    valid = np.ones((n, k), bool) if valid is None else np.asarray(valid, bool)
+    count = valid.sum(axis=1)
+    idx = np.arange(k)[None, :]
+    nxt = np.where(idx + 1 < count[:, None], idx + 1, 0)
+    prv = np.where(idx > 0, idx - 1, count[:, None] - 1)
+
+    s = polygons - points[:, None, :]
+    r = np.linalg.norm(s, axis=2)
+    s_next = np.take_along_axis(s, nxt[..., None], axis=1)
+    r_next = np.take_along_axis(r, nxt, axis=1)
+    det = s[..., 0] * s_next[..., 1] - s[..., 1] * s_next[..., 0]
+    dot = np.einsum("nkd,nkd->nk", s, s_next)
+    scale = np.max(np.where(valid, r, 0.0), axis=1, keepdims=True)
+
+    at_vertex = valid & (r <= eps * scale)
+    on_edge = valid & ~at_vertex & (np.abs(det) <= eps * r * r_next) & (dot < 0)
+    on_edge &= np.take_along_axis(~at_vertex, nxt, axis=1)
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tan_half = np.where(valid & ~on_edge, det / (r * r_next + dot), 0.0)
+        tan_prev = np.take_along_axis(tan_half, prv, axis=1)
+        lam = np.where(valid, (tan_prev + tan_half) / r, 0.0)
+        weights = lam / lam.sum(axis=1, keepdims=True)
+
+    # Exact special cases: a vertex hit wins, then an edge hit.
+    edge_rows = on_edge.any(axis=1)
+    if edge_rows.any():
+        e = np.argmax(on_edge, axis=1)
+        rows = np.flatnonzero(edge_rows)
+        ei, en = e[rows], nxt[rows, e[rows]]
+        ri, rn = r[rows, ei], r_next[rows, ei]
+        weights[rows] = 0.0
+        weights[rows, ei] = rn / (ri + rn)
+        weights[rows, en] = ri / (ri + rn)
+    vertex_rows = at_vertex.any(axis=1)
+    if vertex_rows.any():
+        rows = np.flatnonzero(vertex_rows)
+        weights[rows] = 0.0
+        weights[rows, np.argmax(at_vertex[rows], axis=1)] = 1.0
+    return np.where(valid, weights, 0.0)
+
+
+def barycentric_coordinates(
+    points: Float[np.ndarray, "n 2"], triangles: Float[np.ndarray, "n 3 2"]
+) -> Float[np.ndarray, "n 3"]:
+    """Barycentric coordinates of each point in its own triangle."""
+    a, b, c = triangles[:, 0], triangles[:, 1], triangles[:, 2]
+    area = np.cross(b - a, c - a)
+    wa = np.cross(b - points, c - points) / area
+    wb = np.cross(c - points, a - points) / area
+    return np.stack([wa, wb, 1.0 - wa - wb], axis=1)
+
+
+def locate_points(
+    points: Float[np.ndarray, "n 2"],
+    vertices: Float[np.ndarray, "v 2"],
+    faces: Int[np.ndarray, "f 3"],
+    chunk: int = 4096,
+) -> tuple[Int[np.ndarray, " n"], Float[np.ndarray, " n"]]:
+    """The triangle containing each point, and how far inside it is.
+
+    Returns the face index maximising the smallest barycentric coordinate, and that
+    coordinate (negative: the point is outside every triangle).
+    """
+    tri = vertices[faces]
+    a, ab, ac = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    inv_area = 1.0 / np.cross(ab, ac)
+    face = np.empty(len(points), np.int64)
+    depth = np.empty(len(points))
+    for start in range(0, len(points), chunk):
+        p = points[start : start + chunk, None, :] - a[None]
+        wb = np.cross(p, ac[None]) * inv_area
+        wc = np.cross(ab[None], p) * inv_area
+        low = np.minimum(np.minimum(wb, wc), 1.0 - wb - wc)
+        best = np.argmax(low, axis=1)
+        face[start : start + chunk] = best
+        depth[start : start + chunk] = low[np.arange(len(best)), best]
+    return face, depth
+
+
+def face_neighbours(faces: Int[np.ndarray, "f 3"]) -> Int[np.ndarray, "f 3"]:
+    """For face `(a, b, c)`, the vertex opposite across edges ab, bc, ca (-1 if none)."""
+    f = len(faces)
+    u = faces.reshape(-1)
+    v = np.roll(faces, -1, axis=1).reshape(-1)
+    third = np.roll(faces, -2, axis=1).reshape(-1)
+    n = int(faces.max()) + 1
+    lookup = dict(zip((u * n + v).tolist(), third.tolist()))
+    reverse = (v * n + u).tolist()
+    return np.asarray([lookup.get(key, -1) for key in reverse], np.int64).reshape(f, 3)
+
+
+def face_star_polygons(
+    faces: Int[np.ndarray, "f 3"], neighbours: Int[np.ndarray, "f 3"]
+) -> tuple[Int[np.ndarray, "f 6"], Bool[np.ndarray, "f 6"]]:
+    """Eq. 1's polygon of each face: `a, x_ab, b, x_bc, c, x_ca`, missing neighbours skipped.
+
+    Returns vertex indices `(f, 6)`, compacted to the front, and which are valid.
+    """
+    poly = np.stack(
+        [faces[:, 0], neighbours[:, 0], faces[:, 1], neighbours[:, 1], faces[:, 2], neighbours[:, 2]],
+        axis=1,
+    )
+    valid = poly >= 0
+    order = np.argsort(~valid, axis=1, kind="stable")
+    poly = np.take_along_axis(poly, order, axis=1)
+    valid = np.take_along_axis(valid, order, axis=1)
+    return np.where(valid, poly, 0), valid
+
+
+def vertex_rings(
+    faces: Int[np.ndarray, "f 3"], centres: Int[np.ndarray, " c"]
+) -> tuple[Int[np.ndarray, "c k"], Bool[np.ndarray, "c k"]]:
+    """The ordered (counter-clockwise) 1-ring of each interior vertex in `centres`.
+
+    Raises ValueError for a vertex on the mesh boundary (its ring is not closed).
+    """
+    nxt: dict[int, dict[int, int]] = {}
+    for a, b, c in faces.tolist():
+        nxt.setdefault(a, {})[b] = c
+        nxt.setdefault(b, {})[c] = a
+        nxt.setdefault(c, {})[a] = b
+    rings = []
+    for v in centres.tolist():
+        around = nxt[v]
+        start = next(iter(around))
+        ring = [start]
+        while True:
+            step = around.get(ring[-1])
+            if step is None:
+                raise ValueError(f"control vertex {v} lies on the mesh boundary: it has no closed 1-ring")
+            if step == start:
+                break
+            ring.append(step)
+        if len(ring) != len(around):
+            raise ValueError(f"control vertex {v} has a non-manifold 1-ring")
+        rings.append(ring)
+    k = max(len(r) for r in rings)
+    idx = np.zeros((len(rings), k), np.int64)
+    valid = np.zeros((len(rings), k), bool)
+    for i, r in enumerate(rings):
+        idx[i, : len(r)] = r
+        valid[i, : len(r)] = True
+    return idx, valid
+
+
+def boundary_loops(faces: Int[np.ndarray, "f 3"]) -> list[np.ndarray]:
+    """Boundary loops of a triangle mesh, oriented as its faces (outer CCW for CCW faces)."""
+    u = faces.reshape(-1)
+    v = np.roll(faces, -1, axis=1).reshape(-1)
+    edges = set(zip(u.tolist(), v.tolist()))
+    nxt = {a: b for a, b in edges if (b, a) not in edges}
+    loops = []
+    while nxt:
+        start, _ = nxt.popitem()
+        loop = [start]
+        nxt[start] = _
+        cur = start
+        while True:
+            cur = nxt.pop(cur)
+            if cur == start:
+                break
+            loop.append(cur)
+        loops.append(np.asarray(loop, np.int64))
+    return loops

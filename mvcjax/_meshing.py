@@ -1,0 +1,268 @@
+"""Shape mesh and control mesh construction (numpy, shapely, Triangle; build time only)."""
+
+from __future__ import annotations
+
+import numpy as np
+import shapely
+import triangle
+from jaxtyping import Float, Int
+from scipy.spatial import Voronoi, cKDTree
+
+from ._shape import Shape
+
+
+def _resample_ring(ring: np.ndarray, step: float) -> np.ndarray:
+    """Ring vertices plus evenly spaced points on every edge longer than `step`."""
+    nxt = np.roll(ring, -1, axis=0)
+    counts = np.maximum(np.ceil(np.linalg.norm(nxt - ring, axis=1) / step).astype(int), 1)
+    t = np.concatenate([np.arange(c) / c for c in counts])
+    start = np.repeat(ring, counts, axis=0)
+    return start + t[:, None] * (np.repeat(nxt, counts, axis=0) - start)
+
+
+def _ring_segments(offset: int, n: int) -> np.ndarray:
+    i = np.arange(n)
+    return np.stack([offset + i, offset + (i + 1) % n], axis=1)
+
+
+def _hole_points(rings) -> np.ndarray:
+    """A point strictly inside each hole ring (for Triangle's hole list)."""
+    pts = [shapely.Polygon(r).representative_point().coords[0] for r in rings]
+    return np.asarray(pts, dtype=np.float64).reshape(-1, 2)
+
+
+def _insert_on_boundary(rings: list[np.ndarray], point: np.ndarray, tol: float):
+    """Insert `point` into the nearest ring edge (or snap to a vertex within `tol`)."""
+    best = None
+    for r, ring in enumerate(rings):
+        a, b = ring, np.roll(ring, -1, axis=0)
+        ab = b - a
+        t = np.clip(np.einsum("ij,ij->i", point - a, ab) / np.einsum("ij,ij->i", ab, ab), 0, 1)
+        d = np.linalg.norm(a + t[:, None] * ab - point, axis=1)
+        k = int(np.argmin(d))
+        if best is None or d[k] < best[0]:
+            best = (d[k], r, k, t[k])
+    _, r, k, t = best
+    ring = rings[r]
+    near = np.linalg.norm(ring - point, axis=1)
+    if near.min() <= tol:
+        return
+    rings[r] = np.insert(ring, k + 1, point, axis=0)
+
+
+def triangulate_shape(
+    shape: Shape, spacing: float, handles: Float[np.ndarray, "h 2"]
+) -> tuple[Float[np.ndarray, "n 2"], Int[np.ndarray, "f 3"], Int[np.ndarray, " h"]]:
+    """Quality triangulation of the shape with edges about `spacing` long.
+
+    Every handle becomes a vertex: one on the boundary (within a tiny tolerance) is
+    inserted into its edge, one inside is a free vertex of the triangulation.
+
+    Returns:
+        vertices `(n, 2)`, counter-clockwise faces `(f, 3)`, and the vertex index of
+        every handle `(h,)`.
+    """
+    tol = 1e-9 * shape.diagonal
+    boundary = shapely.MultiLineString([np.vstack([r, r[:1]]) for r in shape.rings])
+    on_boundary = shapely.distance(shapely.points(handles), boundary) <= 1e-6 * shape.diagonal
+    rings = [_resample_ring(r, spacing) for r in shape.rings]
+    for p in handles[on_boundary]:
+        _insert_on_boundary(rings, p, tol)
+    inner = handles[~on_boundary]
+    sizes = [len(r) for r in rings]
+    offsets = np.cumsum([0, *sizes])
+    vertices = np.concatenate([*rings, inner])
+    segments = np.concatenate([_ring_segments(o, n) for o, n in zip(offsets, sizes)])
+    data = dict(vertices=vertices, segments=segments)
+    if shape.holes:
+        data["holes"] = _hole_points(shape.holes)
+    max_area = np.sqrt(3.0) / 4.0 * spacing**2
+    out = triangle.triangulate(data, f"pq28a{max_area:.17g}Q")
+    verts, faces = np.asarray(out["vertices"], np.float64), np.asarray(out["triangles"], np.int64)
+    handle_idx = cKDTree(verts).query(handles)[1]
+    return verts, _counter_clockwise(verts, faces), handle_idx.astype(np.int64)
+
+
+def _counter_clockwise(verts, faces):
+    a, b, c = (verts[faces[:, i]] for i in range(3))
+    signed = np.cross(b - a, c - a)
+    faces = faces.copy()
+    faces[signed < 0] = faces[signed < 0][:, [0, 2, 1]]
+    return faces
+
+
+def _gap_cuts(shape: Shape, margin: float, step: float | None = None):
+    """Pieces of the exterior medial axis closer than `margin` to the shape.
+
+    An outward offset by `margin` closes every gap narrower than `2 * margin`. The
+    medial axis of the outside, where its clearance is below the margin, is exactly
+    where the offset would merge two parts of the boundary that are far apart along
+    the boundary itself: cutting the offset along it keeps every gap open.
+    It is approximated by the Voronoi ridges between boundary samples (`step` apart)
+    whose distance along the boundary exceeds `pi * margin` (closer ones belong to
+    one concave corner, which an offset may round off). The samples are refined until
+    they are denser than the narrowest gap found, so that the axis is smooth.
+
+    Returns:
+        the cut as shapely lines (or None where no gap is narrower than `2 * margin`),
+        and the narrowest gap width found.
+    """
+    step = margin / 4.0 if step is None else step
+    samples, ring_id, arc, length = [], [], [], []
+    for r, ring in enumerate(shape.rings):
+        pts = _resample_ring(ring, step)
+        seg = np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1)
+        samples.append(pts)
+        ring_id.append(np.full(len(pts), r))
+        arc.append(np.concatenate([[0.0], np.cumsum(seg)[:-1]]))
+        length.append(np.full(len(pts), seg.sum()))
+    pts, ring_id, arc, length = map(np.concatenate, (samples, ring_id, arc, length))
+    vor = Voronoi(pts)
+    a, b = vor.ridge_points[:, 0], vor.ridge_points[:, 1]
+    along = np.abs(arc[a] - arc[b])
+    along = np.minimum(along, length[a] - along)
+    far = (ring_id[a] != ring_id[b]) | (along > np.pi * margin)
+    half_gap = 0.5 * np.linalg.norm(pts[a] - pts[b], axis=1)
+    reach = 1.05 * margin
+    keep = far & (half_gap < reach)
+    if not keep.any():
+        return None, np.inf
+    a, b, half_gap = a[keep], b[keep], half_gap[keep]
+    ridge = np.asarray(vor.ridge_vertices)[keep]
+    pa, pb = pts[a], pts[b]
+    mid = 0.5 * (pa + pb)
+    u = np.stack([pa[:, 1] - pb[:, 1], pb[:, 0] - pa[:, 0]], axis=1)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    tmax = np.sqrt(np.maximum(reach**2 - half_gap**2, 0.0))
+    ends = vor.vertices[np.maximum(ridge, 0)]
+    t = np.einsum("rkd,rd->rk", ends - mid[:, None, :], u)
+    # An infinite ridge is a ray from its finite vertex, away from the samples.
+    away = np.where(np.einsum("rd,rd->r", mid - pts.mean(axis=0), u) > 0, np.inf, -np.inf)
+    t = np.where(ridge < 0, away[:, None], t)
+    t0 = np.maximum(t.min(axis=1), -tmax)
+    t1 = np.minimum(t.max(axis=1), tmax)
+    ok = t1 > t0
+    if not ok.any():
+        return None, np.inf
+    narrowest = 2.0 * float(half_gap[ok].min())
+    if step > narrowest / 2.0 and step > 1e-3 * margin:
+        return _gap_cuts(shape, margin, max(narrowest / 4.0, 1e-3 * margin))
+    lines = np.stack([mid + t0[:, None] * u, mid + t1[:, None] * u], axis=1)[ok]
+    cut = shapely.multilinestrings(lines).difference(shape.polygon)
+    return (None, np.inf) if cut.is_empty else (cut, narrowest)
+
+
+def _simplify_ring(ring, spacing, inside, outside, count_min=3):
+    """Greedy chords of `ring` inside `inside`, off `outside`, at most `spacing` long."""
+    n = len(ring)
+    keep = [0]
+    i = 0
+    while i < n:
+        j = i + 1
+        while j < n:
+            nxt = j + 1
+            p, q = ring[i], ring[nxt % n]
+            if np.linalg.norm(q - p) > spacing:
+                break
+            chord = shapely.LineString([p, q])
+            if not (inside.covers(chord) and not outside.intersects(chord)):
+                break
+            j = nxt
+        if j >= n:
+            break
+        keep.append(j)
+        i = j
+    out = ring[np.asarray(keep)]
+    return out if len(out) >= count_min else ring
+
+
+def control_polygon(shape: Shape, margin: float, spacing: float) -> list[np.ndarray]:
+    """Loops of the control polygon `V_CP`: outside the shape, never across a gap.
+
+    The shape is offset outwards by `margin`, the offset is cut along the exterior
+    medial axis wherever it would close a gap (`_gap_cuts`), and each resulting loop is
+    simplified by chords no longer than `spacing` that stay inside the cut offset and
+    off the shape. The first loop encloses the shape (counter-clockwise); the others lie
+    inside holes (clockwise).
+    """
+    poly = shape.polygon
+    cut, narrowest = _gap_cuts(shape, margin)
+    clearance = min(0.05 * margin, 0.2 * narrowest)
+    region = poly.buffer(margin, quad_segs=4)
+    if cut is not None:
+        region = region.difference(cut.buffer(clearance, quad_segs=2))
+    region = region.union(poly)
+    if region.geom_type != "Polygon":
+        region = max(region.geoms, key=lambda g: g.intersection(poly).area)
+    region = shapely.geometry.polygon.orient(region, 1.0)
+    # Chords may leave the scalloped edge of the cut's buffer, but never touch the cut
+    # itself (that would close the gap) nor come near the shape.
+    inside = poly.buffer(margin * 1.001, quad_segs=4)
+    outside = poly.buffer(0.5 * clearance, quad_segs=2)
+    if cut is not None:
+        outside = outside.union(cut.buffer(0.25 * clearance, quad_segs=2))
+    shapely.prepare(inside)
+    shapely.prepare(outside)
+    loops = []
+    for r in [region.exterior, *region.interiors]:
+        ring = np.asarray(r.coords)[:-1]
+        loops.append(_simplify_ring(ring, spacing, inside, outside))
+    control = shapely.Polygon(loops[0], loops[1:])
+    if not control.is_valid or not control.contains(poly):
+        raise ValueError(
+            "Could not build a control polygon that encloses the shape without crossing "
+            f"itself (margin={margin:.4g}, control_spacing={spacing:.4g}); try a smaller "
+            "margin or control_spacing, or pass a control mesh of your own."
+        )
+    return loops
+
+
+def inner_control_vertices(
+    vertices: Float[np.ndarray, "n 2"],
+    handle_idx: Int[np.ndarray, " h"],
+    loops: list[np.ndarray],
+    spacing: float,
+) -> Int[np.ndarray, " g"]:
+    """`V_CG`: shape-mesh vertices about `spacing` apart, the handles first.
+
+    Farthest-point sampling seeded with the handles: the vertex farthest from every
+    chosen one is added until every vertex is within `spacing` of a chosen vertex, or
+    within `spacing / 2` of the control polygon (closer ones would only make slivers).
+    """
+    polygon_edges = shapely.MultiLineString([np.vstack([lp, lp[:1]]) for lp in loops])
+    dist = 2.0 * shapely.distance(shapely.points(vertices), polygon_edges)
+    for h in handle_idx:
+        dist = np.minimum(dist, np.linalg.norm(vertices - vertices[h], axis=1))
+    chosen = list(handle_idx)
+    while True:
+        k = int(np.argmax(dist))
+        if dist[k] < spacing:
+            break
+        chosen.append(k)
+        dist = np.minimum(dist, np.linalg.norm(vertices - vertices[k], axis=1))
+    return np.asarray(chosen, np.int64)
+
+
+def triangulate_control(
+    loops: list[np.ndarray], inner_points: Float[np.ndarray, "g 2"]
+) -> tuple[Float[np.ndarray, "c 2"], Int[np.ndarray, "f 3"]]:
+    """Constrained triangulation of the polygon loops and the inner points, no new vertex.
+
+    Vertices are numbered loop after loop, then the inner points.
+    """
+    sizes = [len(lp) for lp in loops]
+    offsets = np.cumsum([0, *sizes])
+    vertices = np.concatenate([*loops, inner_points])
+    data = dict(
+        vertices=vertices,
+        segments=np.concatenate([_ring_segments(o, n) for o, n in zip(offsets, sizes)]),
+    )
+    if len(loops) > 1:
+        data["holes"] = _hole_points(loops[1:])
+    out = triangle.triangulate(data, "pQ")
+    if len(out["vertices"]) != len(vertices):
+        raise ValueError(
+            "The control polygon crosses itself or passes through an inner control vertex; "
+            "try a smaller control_spacing or margin."
+        )
+    return vertices, _counter_clockwise(vertices, np.asarray(out["triangles"], np.int64))

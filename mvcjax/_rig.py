@@ -1,0 +1,389 @@
+"""Rig: the shape mesh, the control mesh, the skinning weights and the solver's data."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import shapely
+from jaxtyping import Array, Float, Int
+
+from . import _coordinates as coords
+from . import _meshing as meshing
+from ._energy import Energy, FixedGFactor, Weights, fixed_g_factor, rigid_start
+from ._shape import Shape
+from ._solvers import AbstractSolver, FixedG, SolveInfo
+
+
+class ShapeMesh(eqx.Module):
+    """The dense triangle mesh the user sees.
+
+    Attributes:
+        vertices: `(n, 2)` rest vertices.
+        faces: `(f, 3)` counter-clockwise triangles.
+        handles: `(h,)` the vertex at each handle.
+    """
+
+    vertices: Float[Array, "n 2"]
+    faces: Int[Array, "f 3"]
+    handles: Int[Array, " h"]
+
+
+class ControlMesh(eqx.Module):
+    """The small mesh the energy is solved on.
+
+    Attributes:
+        vertices: `(c, 2)` rest vertices, the polygon loops first, then the inner ones.
+        faces: `(f, 3)` counter-clockwise triangles.
+        outer: `(p,)` the vertices of the enclosing polygon `V_CP`, loop after loop.
+        inner: `(g,)` the inner vertices `V_CG`.
+        handles: `(h,)` the vertex at each handle.
+    """
+
+    vertices: Float[Array, "c 2"]
+    faces: Int[Array, "f 3"]
+    outer: Int[Array, " p"]
+    inner: Int[Array, " g"]
+    handles: Int[Array, " h"]
+
+
+class Skinning(eqx.Module):
+    """Each shape vertex as a weighted sum of a few control vertices: `V_S = W V_C`.
+
+    Attributes:
+        indices: `(n, k)` control vertices of each shape vertex (padded with 0).
+        weights: `(n, k)` their weights (0 on padding); rows sum to 1.
+    """
+
+    indices: Int[Array, "n k"]
+    weights: Float[Array, "n k"]
+
+    def __call__(self, control_vertices: Float[Array, "c 2"]) -> Float[Array, "n 2"]:
+        def one(index, weight):
+            return weight @ control_vertices[index]
+
+        return jax.vmap(one)(self.indices, self.weights)
+
+
+def _default_float():
+    return jnp.asarray(0.0).dtype
+
+
+def _check_handles(shape: Shape, handles) -> np.ndarray:
+    handles = np.asarray(handles, dtype=np.float64)
+    if handles.ndim != 2 or handles.shape[1] != 2 or len(handles) == 0:
+        raise ValueError(
+            f"handles must be an array of shape (h, 2) with at least one (x, y) point, got "
+            f"shape {handles.shape}."
+        )
+    if not np.all(np.isfinite(handles)):
+        raise ValueError("handles contain NaN or infinite coordinates.")
+    tol = 1e-6 * shape.diagonal
+    poly = shape.polygon
+    dist = shapely.distance(shapely.points(handles), poly)
+    for i in np.flatnonzero(dist > tol):
+        near = shape.closest_point(handles[i])
+        raise ValueError(
+            f"handles[{i}] = {handles[i].tolist()} lies outside the shape (distance "
+            f"{dist[i]:.4g}); put it on or inside the shape, e.g. at its closest point "
+            f"{near.round(6).tolist()} (Shape.closest_point)."
+        )
+    gap = np.linalg.norm(handles[:, None] - handles[None], axis=2)
+    np.fill_diagonal(gap, np.inf)
+    i, j = np.unravel_index(np.argmin(gap), gap.shape)
+    if gap[i, j] <= tol:
+        raise ValueError(
+            f"handles[{min(i, j)}] and handles[{max(i, j)}] are at the same spot "
+            f"{handles[i].tolist()}; remove one of them."
+        )
+    return handles
+
+
+def _spacings(shape: Shape, shape_spacing, control_spacing, margin):
+    unit = np.sqrt(shape.area)
+    control_spacing = unit / 8.0 if control_spacing is None else float(control_spacing)
+    shape_spacing = unit / 40.0 if shape_spacing is None else float(shape_spacing)
+    margin = control_spacing / 3.0 if margin is None else float(margin)
+    for name, value in [("shape_spacing", shape_spacing), ("control_spacing", control_spacing),
+                        ("margin", margin)]:
+        if not np.isfinite(value) or value <= 0:
+            raise ValueError(f"{name} must be a positive length, got {value}.")
+    return shape_spacing, control_spacing, margin
+
+
+def _laplacian_index(loops: list[np.ndarray]) -> np.ndarray:
+    rows = [np.stack([lp, np.roll(lp, 1), np.roll(lp, -1)], axis=1) for lp in loops]
+    return np.concatenate(rows)
+
+
+def _control_from_arrays(control, handles, tol):
+    vertices, faces = (np.asarray(a) for a in control)
+    vertices = np.asarray(vertices, np.float64)
+    faces = np.asarray(faces, np.int64)
+    if vertices.ndim != 2 or vertices.shape[1] != 2 or faces.ndim != 2 or faces.shape[1] != 3:
+        raise ValueError(
+            "control must be (vertices, faces) with vertices of shape (c, 2) and faces of "
+            f"shape (f, 3), got {vertices.shape} and {faces.shape}."
+        )
+    faces = meshing._counter_clockwise(vertices, faces)
+    loops = coords.boundary_loops(faces)
+    loops.sort(key=lambda lp: -abs(shapely.Polygon(vertices[lp]).area))
+    dist = np.linalg.norm(vertices[None] - handles[:, None], axis=2)
+    idx = np.argmin(dist, axis=1)
+    bad = np.flatnonzero(dist[np.arange(len(handles)), idx] > tol)
+    if len(bad):
+        raise ValueError(
+            f"handles[{bad[0]}] = {handles[bad[0]].tolist()} is not a vertex of the given "
+            "control mesh; every handle must be a control vertex: add it to the mesh."
+        )
+    on_loop = np.zeros(len(vertices), bool)
+    on_loop[np.concatenate(loops)] = True
+    inner = np.flatnonzero(~on_loop)
+    return vertices, faces, loops, inner, idx
+
+
+class Rig(eqx.Module):
+    """A shape ready to deform: both meshes, the skinning weights and the solver's data.
+
+    Build one with `Rig.build`. A rig is a pytree of arrays: pass it through `jax.jit`,
+    `jax.vmap` and `jax.grad` like any other argument. New targets or new weights
+    (`with_weights`) never trigger a recompilation; only new array shapes do.
+
+    Attributes:
+        shape_mesh: the dense mesh that is drawn.
+        control_mesh: the small mesh that is solved.
+        skinning: the mean value coordinates carrying the shape mesh (eq. 1).
+        energy: the data and weights of the energy (6).
+        factor: the precomputed `G` of the fixed-G iteration.
+    """
+
+    shape_mesh: ShapeMesh
+    control_mesh: ControlMesh
+    skinning: Skinning
+    energy: Energy
+    factor: FixedGFactor
+
+    @classmethod
+    def build(
+        cls,
+        shape: Shape,
+        handles,
+        *,
+        shape_spacing: float | None = None,
+        control_spacing: float | None = None,
+        margin: float | None = None,
+        weights: Weights | None = None,
+        control=None,
+        dtype=None,
+    ) -> Rig:
+        """Mesh the shape, build the control mesh, and precompute everything.
+
+        Args:
+            shape: the shape to deform.
+            handles: `(h, 2)` handle points, on or inside the shape.
+            shape_spacing: edge length of the shape mesh (default: `sqrt(area) / 60`,
+                about 2.3k vertices on a compact shape).
+            control_spacing: spacing of the inner control vertices and longest edge of
+                the control polygon (default: `sqrt(area) / 8`).
+            margin: how far outside the shape the control polygon runs, where no gap is
+                narrower than twice that (default: `control_spacing / 3`).
+            weights: the term weights (default `Weights()`).
+            control: a control mesh of your own, as `(vertices (c, 2), faces (f, 3))`,
+                covering the shape, with a vertex at every handle. Its boundary loops are
+                `V_CP`, every other vertex is `V_CG`.
+            dtype: float dtype of the rig's arrays (default: JAX's default float).
+        """
+        if not isinstance(shape, Shape):
+            raise TypeError(
+                f"shape must be an mvcjax.Shape, got {type(shape).__name__}; build one with "
+                "Shape.from_polygon(outer, holes) or Shape.from_image(mask)."
+            )
+        handles = _check_handles(shape, handles)
+        shape_spacing, control_spacing, margin = _spacings(
+            shape, shape_spacing, control_spacing, margin
+        )
+        weights = Weights() if weights is None else weights
+        dtype = _default_float() if dtype is None else jnp.dtype(dtype)
+
+        shape_vertices, shape_faces, shape_handles = meshing.triangulate_shape(
+            shape, shape_spacing, handles
+        )
+        if control is None:
+            loops = meshing.control_polygon(shape, margin, control_spacing)
+            inner_shape = meshing.inner_control_vertices(
+                shape_vertices, shape_handles, loops, control_spacing
+            )
+            control_vertices, control_faces = meshing.triangulate_control(
+                loops, shape_vertices[inner_shape]
+            )
+            offsets = np.cumsum([0, *(len(lp) for lp in loops)])
+            loops = [np.arange(a, b) for a, b in zip(offsets[:-1], offsets[1:])]
+            inner = np.arange(offsets[-1], len(control_vertices))
+            control_handles = inner[: len(handles)]
+        else:
+            control_vertices, control_faces, loops, inner, control_handles = _control_from_arrays(
+                control, handles, 1e-6 * shape.diagonal
+            )
+
+        skin_index, skin_weight = _skinning_weights(
+            shape_vertices, control_vertices, control_faces, 1e-9 * shape.diagonal
+        )
+        energy = _energy_data(
+            control_vertices, control_faces, loops, inner, control_handles, weights, dtype,
+            shape.diagonal,
+        )
+        as_int = lambda a: jnp.asarray(a, jnp.int32)  # noqa: E731
+        return cls(
+            shape_mesh=ShapeMesh(
+                jnp.asarray(shape_vertices, dtype), as_int(shape_faces), as_int(shape_handles)
+            ),
+            control_mesh=ControlMesh(
+                jnp.asarray(control_vertices, dtype), as_int(control_faces),
+                as_int(np.concatenate(loops)), as_int(inner), as_int(control_handles),
+            ),
+            skinning=Skinning(as_int(skin_index), jnp.asarray(skin_weight, dtype)),
+            energy=energy,
+            factor=fixed_g_factor(energy),
+        )
+
+    # ---- using the rig --------------------------------------------------------------
+
+    @property
+    def handle_positions(self) -> Float[Array, "h 2"]:
+        """The handles' rest positions: targets equal to these give back the rest shape."""
+        return self.control_mesh.vertices[self.control_mesh.handles]
+
+    def with_weights(self, weights: Weights) -> Rig:
+        """The same rig with other term weights (recomputes `G`; jittable, differentiable)."""
+        energy = eqx.tree_at(lambda e: e.weights, self.energy, weights.astype(self.energy.rest.dtype))
+        return eqx.tree_at(lambda r: (r.energy, r.factor), self, (energy, fixed_g_factor(energy)))
+
+    def start(self, targets: Float[Array, "h 2"], init="rigid") -> Float[Array, "c 2"]:
+        """Starting control vertices: `"rigid"` (the rest mesh moved rigidly to fit the
+        targets), `"rest"` (the paper's), or an explicit `(c, 2)` array."""
+        if isinstance(init, str):
+            if init == "rigid":
+                return rigid_start(self.energy, targets)
+            if init == "rest":
+                return self.energy.rest
+            raise ValueError(f"init must be 'rigid', 'rest' or an array, got {init!r}.")
+        init = jnp.asarray(init, self.energy.rest.dtype)
+        if init.shape != self.energy.rest.shape:
+            raise ValueError(
+                f"init must have the control mesh's shape {self.energy.rest.shape}, got {init.shape}."
+            )
+        return init
+
+    def _check_targets(self, targets) -> Float[Array, "h 2"]:
+        targets = jnp.asarray(targets)
+        h = self.energy.handles.shape[0]
+        if targets.shape != (h, 2):
+            raise ValueError(
+                f"targets must have shape ({h}, 2), one (x, y) per handle, got {targets.shape}; "
+                "for several frames, use jax.vmap over a leading axis."
+            )
+        if not jnp.issubdtype(targets.dtype, jnp.floating):
+            targets = targets.astype(self.energy.rest.dtype)
+        return targets.astype(self.energy.rest.dtype)
+
+    def solve(
+        self,
+        targets: Float[Array, "h 2"],
+        solver: AbstractSolver = FixedG(),
+        *,
+        init="rigid",
+        return_info: bool = False,
+    ):
+        """Control vertices minimising the energy (6) for these handle targets.
+
+        Args:
+            targets: `(h, 2)` where each handle should go.
+            solver: a solver (default: the paper's `FixedG()`, 15 iterations).
+            init: the start, see `Rig.start`.
+            return_info: also return a `SolveInfo` (converged, iterations, energy).
+
+        Returns:
+            `(c, 2)` control vertices, and the `SolveInfo` if asked for.
+        """
+        if not isinstance(solver, AbstractSolver):
+            raise TypeError(
+                f"solver must be an mvcjax solver such as mvcjax.FixedG() or "
+                f"mvcjax.GaussNewton(), got {solver!r}."
+            )
+        targets = self._check_targets(targets)
+        vertices, info = solver.solve(self.energy, self.factor, targets, self.start(targets, init))
+        return (vertices, info) if return_info else vertices
+
+    def skin(self, control_vertices: Float[Array, "c 2"]) -> Float[Array, "n 2"]:
+        """Shape-mesh vertices carried by the control vertices (`V_S = W V_C`)."""
+        return self.skinning(control_vertices)
+
+    def deform(
+        self,
+        targets: Float[Array, "h 2"],
+        solver: AbstractSolver = FixedG(),
+        *,
+        init="rigid",
+        return_info: bool = False,
+    ):
+        """Solve, then skin: the deformed shape-mesh vertices `(n, 2)` (and the info)."""
+        vertices, info = self.solve(targets, solver, init=init, return_info=True)
+        shape = self.skin(vertices)
+        return (shape, info) if return_info else shape
+
+    def __repr__(self) -> str:
+        return (
+            f"Rig(shape mesh: {self.shape_mesh.vertices.shape[0]} vertices, "
+            f"{self.shape_mesh.faces.shape[0]} faces; control mesh: "
+            f"{self.control_mesh.vertices.shape[0]} vertices ({self.control_mesh.outer.shape[0]} "
+            f"polygon, {self.control_mesh.inner.shape[0]} inner), "
+            f"{self.control_mesh.handles.shape[0]} handles)"
+        )
+
+
+def _skinning_weights(shape_vertices, control_vertices, control_faces, tol):
+    face, depth = coords.locate_points(shape_vertices, control_vertices, control_faces)
+    outside = np.flatnonzero(depth < -1e-9)
+    if len(outside):
+        raise ValueError(
+            f"{len(outside)} shape vertices lie outside the control mesh (e.g. "
+            f"{shape_vertices[outside[0]].round(6).tolist()}); the control mesh must cover the "
+            "whole shape."
+        )
+    neighbours = coords.face_neighbours(control_faces)
+    polygons, valid = coords.face_star_polygons(control_faces, neighbours)
+    index, valid = polygons[face], valid[face]
+    weights = coords.mean_value_coordinates(shape_vertices, control_vertices[index], valid)
+    return index, weights
+
+
+def _energy_data(vertices, faces, loops, inner, handles, weights, dtype, diagonal) -> Energy:
+    lap_index = _laplacian_index(loops)
+    lap_vectors = vertices[lap_index[:, 0]] - 0.5 * (
+        vertices[lap_index[:, 1]] + vertices[lap_index[:, 2]]
+    )
+    ring, valid = coords.vertex_rings(faces, inner)
+    ring_weight = coords.mean_value_coordinates(vertices[inner], vertices[ring], valid)
+    polygon_edges = {
+        tuple(sorted(e)) for lp in loops for e in zip(lp.tolist(), np.roll(lp, -1).tolist())
+    }
+    all_edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    all_edges = np.unique(all_edges, axis=0)
+    keep = np.array([tuple(e) not in polygon_edges for e in all_edges.tolist()], bool)
+    edges = all_edges[keep]
+    edge_length = np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1)
+    as_int = lambda a: jnp.asarray(a, jnp.int32)  # noqa: E731
+    return Energy(
+        rest=jnp.asarray(vertices, dtype),
+        laplacian_index=as_int(lap_index),
+        laplacian_length=jnp.asarray(np.linalg.norm(lap_vectors, axis=1), dtype),
+        mvc_centre=as_int(inner),
+        mvc_ring=as_int(ring),
+        mvc_weight=jnp.asarray(ring_weight, dtype),
+        edges=as_int(edges),
+        edge_length=jnp.asarray(edge_length, dtype),
+        handles=as_int(handles),
+        weights=weights.astype(dtype),
+        scale=jnp.asarray(diagonal, dtype),
+    )

@@ -1,0 +1,50 @@
+"""The interface every solver of the energy (6) shares."""
+
+from __future__ import annotations
+
+import abc
+
+import equinox as eqx
+from jaxtyping import Array, Bool, Float, Int
+
+from .._energy import Energy, FixedGFactor
+
+
+class SolveInfo(eqx.Module):
+    """What a solve did.
+
+    Attributes:
+        converged: whether the solver met its tolerance (a fixed iteration count that
+            did not is reported as not converged, not hidden).
+        iterations: the number of steps taken.
+        energy: the energy (6) at the returned control vertices.
+    """
+
+    converged: Bool[Array, ""]
+    iterations: Int[Array, ""]
+    energy: Float[Array, ""]
+
+
+class AbstractSolver(eqx.Module):
+    """A solver of the energy (6): a frozen configuration with one `solve` method.
+
+    Its fields are static configuration: changing one compiles anew, while new targets
+    or weights never do.
+    """
+
+    @abc.abstractmethod
+    def solve(
+        self,
+        energy: Energy,
+        factor: FixedGFactor,
+        targets: Float[Array, "h 2"],
+        init: Float[Array, "n 2"],
+    ) -> tuple[Float[Array, "n 2"], SolveInfo]:
+        """Minimise the energy from `init`; return control vertices and a `SolveInfo`.
+
+        Args:
+            energy: the rig's energy data and weights.
+            factor: the rig's precomputed `G` (solvers that do not need it ignore it).
+            targets: `(h, 2)` handle targets.
+            init: `(n, 2)` starting control vertices.
+        """

@@ -1,0 +1,60 @@
+"""Figures: meshes, rigs and deformations (matplotlib)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def _axes(ax):
+    if ax is None:
+        import matplotlib.pyplot as plt
+
+        _, ax = plt.subplots(figsize=(6, 5))
+    ax.set_aspect("equal")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    return ax
+
+
+def plot_mesh(vertices, faces, ax=None, *, color="0.55", linewidth=0.3, **kwargs):
+    """Draw a triangle mesh's edges; extra keywords go to `Axes.triplot`."""
+    ax = _axes(ax)
+    v, f = np.asarray(vertices), np.asarray(faces)
+    ax.triplot(v[:, 0], v[:, 1], f, color=color, linewidth=linewidth, **kwargs)
+    return ax
+
+
+def plot_rig(rig, ax=None, *, control_vertices=None, shape_vertices=None, targets=None):
+    """The shape mesh under the control mesh, polygon `V_CP` and handles marked.
+
+    Pass deformed `control_vertices` / `shape_vertices` (and `targets`) to draw a pose.
+    """
+    ax = _axes(ax)
+    sv = rig.shape_mesh.vertices if shape_vertices is None else shape_vertices
+    cv = rig.control_mesh.vertices if control_vertices is None else control_vertices
+    sv, cv = np.asarray(sv), np.asarray(cv)
+    plot_mesh(sv, rig.shape_mesh.faces, ax, color="0.6", linewidth=0.25)
+    plot_mesh(cv, rig.control_mesh.faces, ax, color="tab:blue", linewidth=0.7)
+    outer = np.asarray(rig.control_mesh.outer)
+    ax.plot(cv[outer, 0], cv[outer, 1], ".", color="tab:blue", markersize=3)
+    handles = np.asarray(rig.control_mesh.handles)
+    ax.plot(cv[handles, 0], cv[handles, 1], "o", color="tab:red", markersize=5, label="handles")
+    if targets is not None:
+        t = np.asarray(targets)
+        ax.plot(t[:, 0], t[:, 1], "x", color="k", markersize=7, label="targets")
+    return ax
+
+
+def plot_deformation(rig, shape_vertices, targets=None, ax=None, *, rest=True):
+    """The deformed shape mesh over the rest outline, with handles and targets."""
+    ax = _axes(ax)
+    if rest:
+        plot_mesh(rig.shape_mesh.vertices, rig.shape_mesh.faces, ax, color="0.85", linewidth=0.25)
+    plot_mesh(shape_vertices, rig.shape_mesh.faces, ax, color="tab:green", linewidth=0.3)
+    sv = np.asarray(shape_vertices)
+    handles = np.asarray(rig.shape_mesh.handles)
+    ax.plot(sv[handles, 0], sv[handles, 1], "o", color="tab:red", markersize=5)
+    if targets is not None:
+        t = np.asarray(targets)
+        ax.plot(t[:, 0], t[:, 1], "x", color="k", markersize=7)
+    return ax
