@@ -1,0 +1,35 @@
+"""Shared problems. The suite runs JAX in float64 (a test's choice, never the library's);
+float32 rigs are built with dtype=jnp.float32 where a test is about float32."""
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+import mvcjax  # noqa: E402
+from mvcjax import datasets  # noqa: E402
+
+
+@pytest.fixture(scope="session")
+def horse():
+    return datasets.horse()
+
+
+@pytest.fixture(scope="session")
+def horse_rig(horse):
+    return mvcjax.Rig.build(horse, datasets.horse_handles(), dtype=jnp.float64)
+
+
+@pytest.fixture(scope="session")
+def ring_shape():
+    t = np.linspace(0, 2 * np.pi, 48, endpoint=False)
+    circle = np.stack([np.cos(t), np.sin(t)], axis=1)
+    return mvcjax.Shape.from_polygon(50 * circle, [20 * circle[::-1]])
+
+
+def drag(rig, offsets):
+    """Targets: the handles' rest positions plus `offsets` (h, 2)."""
+    return rig.handle_positions + jnp.asarray(offsets, rig.handle_positions.dtype)

@@ -1,0 +1,63 @@
+import numpy as np
+import pytest
+import shapely
+
+import mvcjax
+from mvcjax._meshing import control_polygon, triangulate_shape
+
+
+def u_shape(gap):
+    """Two 100-long prongs joined at the top, `gap` apart."""
+    left = np.array([[0, 0], [10, 0], [10, 100], [10 + gap, 100], [10 + gap, 0], [20 + gap, 0],
+                     [20 + gap, 120], [0, 120]], dtype=float)
+    return mvcjax.Shape.from_polygon(left)
+
+
+def control_region(rig):
+    cm = rig.control_mesh
+    v, f = np.asarray(cm.vertices), np.asarray(cm.faces)
+    return shapely.union_all([shapely.Polygon(v[t]) for t in f])
+
+
+@pytest.mark.parametrize("gap", [0.3, 1.0, 6.0])
+def test_control_polygon_never_bridges_a_gap(gap):
+    shape = u_shape(gap)
+    loops = control_polygon(shape, margin=4.0, spacing=15.0)
+    polygon = shapely.Polygon(loops[0], loops[1:])
+    assert polygon.is_valid and polygon.contains(shape.polygon)
+    # The gap stays outside the polygon down its length; only its last few units below
+    # the bridge at y = 100 are rounded off, as an offset rounds any concave corner.
+    for y in [5.0, 50.0, 90.0]:
+        assert not polygon.covers(shapely.Point(10 + gap / 2, y))
+
+
+def test_horse_control_mesh_keeps_the_front_legs_apart(horse_rig, horse):
+    region = control_region(horse_rig)
+    assert region.covers(horse.polygon)
+    # Across the front legs, the control mesh is two separate pieces: nothing bridges the
+    # one-pixel slot between them.
+    for y in np.arange(25.0, 71.0, 5.0):
+        across = region.intersection(shapely.LineString([(240.0, y), (285.0, y)]))
+        assert across.geom_type == "MultiLineString" and len(across.geoms) == 2, y
+    # Every control triangle lies inside the shape grown by the margin: no bridging.
+    assert region.difference(horse.polygon.buffer(10.0)).area < 1e-6
+
+
+def test_shape_mesh_has_a_vertex_at_every_handle(horse):
+    handles = np.array([[100.0, 200.0], horse.outer[10], 0.5 * (horse.outer[20] + horse.outer[21])])
+    v, f, idx = triangulate_shape(horse, 6.0, handles)
+    np.testing.assert_allclose(v[idx], handles, atol=1e-9)
+    assert len(np.unique(idx)) == 3
+    areas = np.cross(np.c_[v[f[:, 1]] - v[f[:, 0]], np.zeros(len(f))],
+                     np.c_[v[f[:, 2]] - v[f[:, 0]], np.zeros(len(f))])[:, 2]
+    assert np.all(areas > 0)
+    assert 0.5 * areas.sum() == pytest.approx(horse.area, rel=1e-9)
+
+
+def test_holes_are_respected(ring_shape):
+    rig = mvcjax.Rig.build(ring_shape, np.array([[35.0, 0.0], [-35.0, 0.0]]))
+    region = control_region(rig)
+    assert not region.covers(shapely.Point(0.0, 0.0))
+    mesh = shapely.union_all([shapely.Polygon(np.asarray(rig.shape_mesh.vertices)[t])
+                              for t in np.asarray(rig.shape_mesh.faces)])
+    assert mesh.area == pytest.approx(ring_shape.area, rel=1e-9)

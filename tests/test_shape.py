@@ -1,0 +1,102 @@
+import numpy as np
+import pytest
+import shapely
+
+from mvcjax import Shape
+
+SQUARE = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0]])
+
+
+def signed_area(ring):
+    x, y = ring[:, 0], ring[:, 1]
+    return 0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)
+
+
+def test_orientation_is_normalised():
+    hole = SQUARE[::-1] * 0.4 + 3.0  # clockwise input hole given counter-clockwise below
+    shape = Shape.from_polygon(SQUARE[::-1], [hole[::-1]])
+    assert signed_area(shape.outer) > 0
+    assert signed_area(shape.holes[0]) < 0
+    assert shape.area == pytest.approx(100 - 16)
+
+
+def test_closing_vertex_and_duplicates_are_dropped():
+    shape = Shape.from_polygon(np.vstack([SQUARE, SQUARE[:1]]))
+    assert len(shape.outer) == 4
+
+
+@pytest.mark.parametrize(
+    "outer, message",
+    [
+        (np.array([[0, 0], [1, 1], [1, 0], [0, 1.0]]), "not simple"),
+        (np.array([[0, 0], [1, 1.0]]), "at least 3"),
+        (np.array([[0, 0], [1, np.nan], [1, 0]]), "NaN"),
+        (np.zeros((4, 3)), r"shape \(n, 2\)"),
+    ],
+)
+def test_bad_polygons_are_explained(outer, message):
+    with pytest.raises(ValueError, match=message):
+        Shape.from_polygon(outer)
+
+
+def test_hole_outside_is_an_error():
+    with pytest.raises(ValueError, match="not simple"):
+        Shape.from_polygon(SQUARE, [SQUARE + 20])
+
+
+def test_from_image_converts_rows_to_y_up():
+    mask = np.zeros((20, 30), bool)
+    mask[2:6, 10:25] = True  # a bar near the top of the image
+    shape = Shape.from_image(mask, tolerance=0)
+    xmin, ymin, xmax, ymax = shape.bounds
+    assert (xmin, xmax) == (9.5, 24.5)
+    assert (ymin, ymax) == (20 - 6 - 0.5, 20 - 2 - 0.5)  # high in the image means large y
+    assert shape.area == pytest.approx(4 * 15 - 4 * 0.125)  # marching squares cuts corners
+
+
+def test_from_image_touching_the_border_is_closed():
+    mask = np.zeros((20, 20), bool)
+    mask[:, :8] = True  # touches three sides
+    exact = Shape.from_image(mask, tolerance=0)
+    assert exact.polygon.is_valid
+    assert exact.area == pytest.approx(20 * 8 - 4 * 0.125)
+    assert exact.bounds == (-0.5, -0.5, 7.5, 19.5)
+    simplified = Shape.from_image(mask, tolerance=0.5)
+    assert len(simplified.outer) < len(exact.outer)
+    assert simplified.polygon.hausdorff_distance(exact.polygon) <= 0.5 + 1e-9
+
+
+def test_from_image_keeps_holes():
+    mask = np.zeros((40, 40), bool)
+    mask[5:35, 5:35] = True
+    mask[15:25, 15:25] = False
+    shape = Shape.from_image(mask)
+    assert len(shape.holes) == 1
+    assert shapely.Polygon(shape.holes[0]).area == pytest.approx(100, rel=0.1)
+
+
+def test_from_image_errors():
+    with pytest.raises(ValueError, match="no foreground"):
+        Shape.from_image(np.zeros((5, 5), bool))
+    with pytest.raises(ValueError, match="foreground everywhere.*~mask"):
+        Shape.from_image(np.ones((5, 5), bool))
+    with pytest.raises(ValueError, match="2D image"):
+        Shape.from_image(np.ones((5, 5, 3), bool))
+    mask = np.zeros((20, 20), bool)
+    mask[2:6, 2:6] = True
+    mask[10:18, 10:18] = True
+    mask[2:4, 14:16] = True
+    with pytest.raises(ValueError, match="3 separate foreground components.*component=0"):
+        Shape.from_image(mask)
+    largest = Shape.from_image(mask, component=0, tolerance=0)
+    assert largest.bounds[0] == pytest.approx(9.5)
+    with pytest.raises(ValueError, match="only 3 components"):
+        Shape.from_image(mask, component=3)
+
+
+def test_thin_slot_survives_simplification(horse):
+    # The horse's front legs are a pixel apart: the outline must stay simple and open there.
+    assert horse.polygon.is_valid
+    assert not horse.polygon.covers(shapely.Point(260.5, 50.0))
+    assert horse.polygon.covers(shapely.Point(255.0, 50.0))
+    assert horse.polygon.covers(shapely.Point(266.0, 50.0))
