@@ -6,6 +6,7 @@ from collections.abc import Sequence
 
 import numpy as np
 import shapely
+import shapely.ops
 from jaxtyping import Bool, Float
 
 

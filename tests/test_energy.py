@@ -1,0 +1,83 @@
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import mvcjax
+from mvcjax._energy import fixed_g_factor, operators, rigid_alignment
+
+from conftest import drag
+
+
+def test_every_residual_vanishes_at_rest(horse_rig):
+    e, rest = horse_rig.energy, horse_rig.energy.rest
+    for term in [mvcjax.laplacian_residual, mvcjax.mvc_residual, mvcjax.length_residual]:
+        assert float(jnp.abs(term(e, rest)).max()) < 1e-10
+    assert float(jnp.abs(mvcjax.handle_residual(e, rest, horse_rig.handle_positions)).max()) == 0
+    assert float(mvcjax.total_energy(e, rest, horse_rig.handle_positions)) < 1e-18
+
+
+def test_energy_is_the_weighted_sum_of_squared_terms(horse_rig):
+    e = horse_rig.energy
+    v = e.rest + jax.random.normal(jax.random.key(0), e.rest.shape)
+    t = drag(horse_rig, np.ones((5, 2)))
+    w = e.weights
+    expected = (
+        w.laplacian * jnp.sum(mvcjax.laplacian_residual(e, v) ** 2)
+        + w.mvc * jnp.sum(mvcjax.mvc_residual(e, v) ** 2)
+        + w.length * jnp.sum(mvcjax.length_residual(e, v) ** 2)
+        + w.handle * jnp.sum(mvcjax.handle_residual(e, v, t) ** 2)
+    )
+    assert float(mvcjax.total_energy(e, v, t)) == pytest.approx(float(expected), rel=1e-12)
+
+
+def test_energy_gradient_matches_finite_differences(horse_rig):
+    e = horse_rig.energy
+    v = e.rest + 2.0 * jax.random.normal(jax.random.key(1), e.rest.shape)
+    t = drag(horse_rig, [[20.0, 5.0]] + [[0.0, 0.0]] * 4)
+    f = lambda x: mvcjax.total_energy(e, x, t)  # noqa: E731
+    g = jax.grad(f)(v)
+    direction = jax.random.normal(jax.random.key(2), v.shape)
+    h = 1e-5
+    fd = (f(v + h * direction) - f(v - h * direction)) / (2 * h)
+    assert float(jnp.sum(g * direction)) == pytest.approx(float(fd), rel=1e-6)
+
+
+def test_zero_length_laplacians_are_safe():
+    # A square sampled with a mid-edge vertex: straight stretches have zero rest Laplacian.
+    outer = np.array([[0, 0], [5, 0], [10, 0], [10, 10], [0, 10.0]])
+    shape = mvcjax.Shape.from_polygon(outer)
+    rig = mvcjax.Rig.build(shape, [[2.0, 2.0], [8.0, 8.0]], control=(
+        np.array([[0, 0], [5, 0], [10, 0], [10, 10], [0, 10], [2, 2], [8, 8.0]]),
+        np.array([[0, 1, 5], [1, 2, 6], [1, 6, 5], [2, 3, 6], [3, 4, 6], [4, 5, 6], [4, 0, 5]]),
+    ))
+    assert float(jnp.min(rig.energy.laplacian_length)) == 0.0
+    flat = rig.energy.rest.at[1].set(jnp.array([5.0, 0.0]))
+    grad = jax.grad(lambda v: mvcjax.total_energy(rig.energy, v, rig.handle_positions))(flat)
+    assert bool(jnp.all(jnp.isfinite(grad)))
+    out = rig.deform(drag(rig, [[3.0, 0.0], [0.0, 0.0]]))
+    assert bool(jnp.all(jnp.isfinite(out)))
+
+
+def test_g_solves_the_normal_equations(horse_rig):
+    e = horse_rig.energy
+    lap, mvc, length, handle = operators(e)
+    w = e.weights
+    factor = fixed_g_factor(e)
+    normal = (w.laplacian * lap.T @ lap + w.mvc * mvc.T @ mvc + w.length * length.T @ length
+              + w.handle * handle.T @ handle)
+    np.testing.assert_allclose(normal @ factor.handle, w.handle * handle.T, atol=1e-9)
+
+
+def test_rigid_alignment_recovers_a_rotation():
+    rng = np.random.default_rng(3)
+    p = jnp.asarray(rng.normal(size=(6, 2)))
+    angle = 0.7
+    rot = jnp.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    q = p @ rot.T + jnp.array([3.0, -1.0])
+    r, t = rigid_alignment(p, q)
+    np.testing.assert_allclose(r, rot, atol=1e-12)
+    np.testing.assert_allclose(p @ r.T + t, q, atol=1e-12)
+    # Coinciding targets: identity rotation and a finite gradient.
+    g = jax.grad(lambda q: jnp.sum(rigid_alignment(p, q)[0]))(jnp.zeros((6, 2)))
+    assert bool(jnp.all(jnp.isfinite(g)))

@@ -1,0 +1,174 @@
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import mvcjax
+from mvcjax import datasets
+
+from conftest import drag
+
+
+def test_public_arrays(horse_rig):
+    sm, cm = horse_rig.shape_mesh, horse_rig.control_mesh
+    assert sm.vertices.shape[1] == 2 and sm.faces.shape[1] == 3
+    n = cm.vertices.shape[0]
+    assert sorted(np.concatenate([cm.outer, cm.inner]).tolist()) == list(range(n))
+    np.testing.assert_allclose(cm.vertices[cm.handles], datasets.horse_handles(), atol=1e-9)
+    np.testing.assert_allclose(sm.vertices[sm.handles], datasets.horse_handles(), atol=1e-9)
+    # V_CG are shape vertices.
+    inner = np.asarray(cm.vertices[cm.inner])
+    d = np.min(np.linalg.norm(inner[:, None] - np.asarray(sm.vertices)[None], axis=2), axis=1)
+    assert d.max() < 1e-9
+
+
+def test_skinning_weights_are_sound(horse_rig):
+    sk = horse_rig.skinning
+    assert bool(jnp.all(jnp.isfinite(sk.weights)))
+    np.testing.assert_allclose(sk.weights.sum(axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(horse_rig.skin(horse_rig.control_mesh.vertices),
+                               horse_rig.shape_mesh.vertices, atol=1e-9)  # linear precision
+    # A shape vertex that is a control vertex (every V_CG is) has a one-hot row.
+    handle_rows = sk.weights[horse_rig.shape_mesh.handles]
+    assert float(jnp.max(handle_rows, axis=1).min()) == 1.0
+
+
+def test_rest_targets_give_the_rest_shape(horse_rig):
+    out = horse_rig.deform(horse_rig.handle_positions)
+    np.testing.assert_allclose(out, horse_rig.shape_mesh.vertices, atol=1e-9)
+
+
+@pytest.mark.parametrize("angle", [0.3, 0.7, 2.5])
+def test_rigid_motion_of_targets_moves_the_result_rigidly(horse_rig, horse, angle):
+    rot = jnp.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    shift = jnp.array([40.0, -25.0])
+    targets = drag(horse_rig, [[30.0, 10.0], [0, 0], [0, 0], [0, 0], [0, 0]])
+    base = horse_rig.deform(targets)
+    moved = horse_rig.deform(targets @ rot.T + shift)
+    err = jnp.max(jnp.linalg.norm(moved - (base @ rot.T + shift), axis=1))
+    assert float(err) < 1e-3 * horse.diagonal
+
+
+def test_handles_land_at_default_weights(horse_rig, horse):
+    # One hoof dragged 60 units: every handle within 0.5% of the diagonal of its target.
+    targets = drag(horse_rig, [[60.0, 0.0], [0, 0], [0, 0], [0, 0], [0, 0]])
+    out = horse_rig.deform(targets)
+    miss = jnp.linalg.norm(out[horse_rig.shape_mesh.handles] - targets, axis=1)
+    assert float(miss.max()) < 0.005 * horse.diagonal
+
+
+def test_handle_weight_makes_handles_land(horse_rig):
+    # Why the default handle weight is not the paper's 1: the handles then stop short,
+    # pulled back by the many rows of the other terms.
+    targets = drag(horse_rig, [[60.0, 0.0], [0, 0], [0, 0], [0, 0], [0, 0]])
+    solver = mvcjax.FixedG(iterations=3000, anderson=5, stop_early=True)
+    misses = []
+    for weights in [mvcjax.Weights(handle=1.0), mvcjax.Weights()]:
+        rig = horse_rig.with_weights(weights)
+        out = rig.deform(targets, solver)
+        misses.append(float(jnp.linalg.norm(out[rig.shape_mesh.handles] - targets, axis=1).max()))
+    assert misses[0] > 20 * misses[1]
+
+
+def test_jit_vmap_grad(horse_rig):
+    frames = jnp.stack([drag(horse_rig, np.full((5, 2), s)) for s in [0.0, 5.0, 10.0]])
+    batched = jax.jit(jax.vmap(lambda t: horse_rig.deform(t)))(frames)
+    single = jnp.stack([horse_rig.deform(t) for t in frames])
+    np.testing.assert_allclose(batched, single, atol=1e-9)
+
+    landmark = 100
+
+    def loss(t):
+        return jnp.sum(horse_rig.deform(t)[landmark] ** 2)
+
+    t = frames[1]
+    g = jax.jit(jax.grad(loss))(t)
+    direction = jax.random.normal(jax.random.key(0), t.shape)
+    h = 1e-4
+    fd = (loss(t + h * direction) - loss(t - h * direction)) / (2 * h)
+    assert float(jnp.sum(g * direction)) == pytest.approx(float(fd), rel=1e-6)
+
+
+def test_rig_is_a_pytree_and_jits_as_an_argument(horse_rig):
+    leaves = jax.tree.leaves(horse_rig)
+    assert all(isinstance(x, jax.Array) for x in leaves)
+    out = jax.jit(lambda r, t: r.deform(t))(horse_rig, horse_rig.handle_positions)
+    np.testing.assert_allclose(out, horse_rig.shape_mesh.vertices, atol=1e-9)
+
+
+def test_new_targets_or_weights_never_recompile(horse_rig):
+    traces = []
+
+    @jax.jit
+    def deform(rig, targets):
+        traces.append(1)
+        return rig.deform(targets)
+
+    deform(horse_rig, horse_rig.handle_positions)
+    deform(horse_rig, drag(horse_rig, np.ones((5, 2))))
+    deform(horse_rig.with_weights(mvcjax.Weights(laplacian=2.0, handle=50.0)),
+           drag(horse_rig, 3 * np.ones((5, 2))))
+    assert len(traces) == 1
+    with_weights = jax.jit(lambda r, w: r.with_weights(w))
+    with_weights(horse_rig, mvcjax.Weights(mvc=3.0))
+    with_weights(horse_rig, mvcjax.Weights(mvc=4.0, length=0.5))
+    assert with_weights._cache_size() == 1
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_float32_and_float64(horse, dtype):
+    rig = mvcjax.Rig.build(horse, datasets.horse_handles(), dtype=dtype)
+    targets = drag(rig, [[60.0, 0.0], [0, 0], [0, 0], [0, 0], [0, 0]])
+    for solver in [mvcjax.FixedG(), mvcjax.GaussNewton()]:
+        out = rig.deform(targets, solver)
+        assert out.dtype == dtype
+        assert bool(jnp.all(jnp.isfinite(out)))
+    rest = rig.deform(rig.handle_positions)
+    tol = (1e-5 if dtype == jnp.float32 else 1e-12) * horse.diagonal
+    np.testing.assert_allclose(rest, rig.shape_mesh.vertices, atol=tol)
+
+
+def test_shapes_with_holes(ring_shape):
+    rig = mvcjax.Rig.build(ring_shape, [[35.0, 0.0], [-35.0, 0.0]])
+    assert rig.control_mesh.vertices.shape[0] > 10
+    out = rig.deform(drag(rig, [[20.0, 0.0], [0.0, 0.0]]))
+    assert bool(jnp.all(jnp.isfinite(out)))
+    assert float(out[rig.shape_mesh.handles[0], 0]) == pytest.approx(55.0, abs=0.5)
+
+
+def test_letter_with_a_counter():
+    mask = np.zeros((60, 50), bool)
+    mask[5:55, 5:45] = True      # an "O"-like block letter
+    mask[18:42, 17:33] = False   # its counter
+    shape = mvcjax.Shape.from_image(mask)
+    assert len(shape.holes) == 1
+    rig = mvcjax.Rig.build(shape, [[25.0, 50.0], [25.0, 8.0]])
+    out = rig.deform(drag(rig, [[0.0, 10.0], [0.0, 0.0]]))
+    assert bool(jnp.all(jnp.isfinite(out)))
+
+
+def test_user_control_mesh(horse, horse_rig):
+    cm = horse_rig.control_mesh
+    rig = mvcjax.Rig.build(horse, datasets.horse_handles(),
+                           control=(np.asarray(cm.vertices), np.asarray(cm.faces)))
+    assert rig.control_mesh.outer.shape == cm.outer.shape
+    targets = drag(rig, [[30.0, 0.0], [0, 0], [0, 0], [0, 0], [0, 0]])
+    np.testing.assert_allclose(rig.deform(targets), horse_rig.deform(targets), atol=1e-6)
+
+
+def test_bad_handles_and_targets_are_explained(horse, horse_rig):
+    with pytest.raises(ValueError, match=r"handles\[1\].*outside the shape.*closest point"):
+        mvcjax.Rig.build(horse, [[100.0, 200.0], [5.0, 5.0]])
+    with pytest.raises(ValueError, match="same spot"):
+        mvcjax.Rig.build(horse, [[100.0, 200.0], [100.0, 200.0]])
+    with pytest.raises(ValueError, match=r"shape \(h, 2\)"):
+        mvcjax.Rig.build(horse, np.zeros((0, 2)))
+    with pytest.raises(ValueError, match=r"targets must have shape \(5, 2\)"):
+        horse_rig.deform(jnp.zeros((4, 2)))
+    with pytest.raises(TypeError, match="mvcjax.Shape"):
+        mvcjax.Rig.build(np.zeros((3, 2)), [[0.0, 0.0]])
+    with pytest.raises(ValueError, match="positive length"):
+        mvcjax.Rig.build(horse, datasets.horse_handles(), shape_spacing=-1.0)
+    with pytest.raises(ValueError, match="not a vertex of the given control mesh"):
+        cm = horse_rig.control_mesh
+        mvcjax.Rig.build(horse, [[101.0, 200.0]], control=(np.asarray(cm.vertices), np.asarray(cm.faces)))

@@ -1,0 +1,149 @@
+"""Solvers against each other and against scipy.optimize.least_squares, on the horse."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.optimize
+
+import mvcjax
+
+from conftest import drag
+
+TIGHT = {
+    "fixed_g": mvcjax.FixedG(iterations=20000, rtol=1e-10, stop_early=True),
+    "anderson": mvcjax.FixedG(iterations=5000, rtol=1e-11, stop_early=True, anderson=5),
+    "gauss_newton": mvcjax.GaussNewton(max_steps=500),
+    "levenberg_marquardt": mvcjax.LevenbergMarquardt(max_steps=1000),
+}
+
+# Drags from the rest pose (handle, offset) where every solver reaches the same minimum.
+AGREEING = [(0, [60.0, 0.0]), (0, [20.0, 20.0]), (4, [10.0, 25.0])]
+
+
+def targets_for(rig, handle, offset):
+    offsets = np.zeros((5, 2))
+    offsets[handle] = offset
+    return drag(rig, offsets)
+
+
+@pytest.fixture(scope="module")
+def solve(horse_rig):
+    cache = {}
+    compiled = {
+        name: jax.jit(lambda r, t, v, s=solver: r.solve(t, s, init=v, return_info=True))
+        for name, solver in TIGHT.items()
+    }
+
+    def run(name, targets, init="rigid"):
+        key = (name, np.asarray(targets).tobytes(), init if isinstance(init, str) else "array")
+        if key not in cache:
+            cache[key] = compiled[name](horse_rig, targets, horse_rig.start(targets, init))
+        return cache[key]
+
+    return run
+
+
+def gradient_norm(rig, vertices, targets):
+    g = jax.grad(lambda v: mvcjax.total_energy(rig.energy, v, targets))(vertices)
+    return float(jnp.abs(g).max())
+
+
+@pytest.fixture(scope="module")
+def reference(horse_rig):
+    cache = {}
+
+    def run(handle, offset):
+        key = (handle, tuple(offset))
+        if key not in cache:
+            targets = targets_for(horse_rig, handle, offset)
+            cache[key] = scipy_minimum(horse_rig, targets, horse_rig.start(targets))
+        return cache[key]
+
+    return run
+
+
+def scipy_minimum(rig, targets, start):
+    fun = jax.jit(lambda x: mvcjax.residuals(rig.energy, x.reshape(-1, 2), targets))
+    jac = jax.jit(jax.jacfwd(fun))
+    result = scipy.optimize.least_squares(
+        lambda x: np.asarray(fun(x)), np.asarray(start).ravel(), jac=lambda x: np.asarray(jac(x)),
+        method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=5000,
+    )
+    return result.x.reshape(-1, 2), 2 * result.cost
+
+
+@pytest.mark.parametrize("handle, offset", AGREEING)
+@pytest.mark.parametrize("name", ["fixed_g", "anderson", "gauss_newton", "levenberg_marquardt"])
+def test_solvers_agree_with_scipy(horse_rig, horse, solve, reference, name, handle, offset):
+    targets = targets_for(horse_rig, handle, offset)
+    vertices, info = solve(name, targets)
+    assert bool(info.converged), (name, int(info.iterations))
+    minimum, minimum_energy = reference(handle, offset)
+    gap = np.abs(np.asarray(vertices) - minimum).max() / horse.diagonal
+    assert gap < 1e-5, gap
+    assert float(info.energy) == pytest.approx(minimum_energy, rel=1e-9)
+
+
+@pytest.mark.parametrize("handle, offset", AGREEING)
+def test_gauss_newton_and_fixed_g_give_the_same_control_vertices(horse_rig, horse, solve,
+                                                                   handle, offset):
+    targets = targets_for(horse_rig, handle, offset)
+    fixed, _ = solve("fixed_g", targets)
+    newton, _ = solve("gauss_newton", targets)
+    assert float(jnp.abs(fixed - newton).max()) < 1e-5 * horse.diagonal
+
+
+def test_several_minima_are_each_stationary(horse_rig, solve):
+    # Hoof lifted 40 units: from the same start the solvers settle in different minima.
+    # Each is a true stationary point of (6); the local-global iteration finds the lowest.
+    targets = targets_for(horse_rig, 0, [0.0, 40.0])
+    found = {name: solve(name, targets) for name in TIGHT}
+    energies = {name: float(info.energy) for name, (_, info) in found.items()}
+    for name, (vertices, info) in found.items():
+        assert bool(info.converged), name
+        assert gradient_norm(horse_rig, vertices, targets) < 1e-5, name
+    assert energies["fixed_g"] == pytest.approx(energies["anderson"], rel=1e-9)
+    assert energies["fixed_g"] < energies["gauss_newton"]
+    assert energies["fixed_g"] < energies["levenberg_marquardt"]
+    # Started at the lowest minimum, Gauss-Newton stays there.
+    vertices, info = solve("gauss_newton", targets, init=found["fixed_g"][0])
+    assert float(jnp.abs(vertices - found["fixed_g"][0]).max()) < 1e-5 * horse_rig.energy.scale
+
+
+def test_fifteen_iterations_are_not_converged_and_say_so(horse_rig):
+    targets = targets_for(horse_rig, 0, [60.0, 0.0])
+    _, info = horse_rig.solve(targets, mvcjax.FixedG(), return_info=True)
+    assert not bool(info.converged) and int(info.iterations) == 15
+    _, info = horse_rig.solve(targets, mvcjax.GaussNewton(max_steps=2), return_info=True)
+    assert not bool(info.converged)
+
+
+def test_anderson_needs_far_fewer_iterations(horse_rig, solve):
+    targets = targets_for(horse_rig, 0, [60.0, 0.0])
+    _, plain = solve("fixed_g", targets)
+    _, fast = solve("anderson", targets)
+    assert int(fast.iterations) * 10 < int(plain.iterations)
+
+
+def test_paper_start_and_rigid_start(horse_rig):
+    # The paper starts from the rest pose; under a large turn 15 steps are then far off,
+    # while the rigid start is exact.
+    angle = np.deg2rad(40.0)
+    rot = jnp.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    targets = horse_rig.handle_positions @ rot.T
+    expected = horse_rig.energy.rest @ rot.T
+    rigid = horse_rig.solve(targets, init="rigid")
+    paper = horse_rig.solve(targets, init="rest")
+    scale = float(horse_rig.energy.scale)
+    assert float(jnp.abs(rigid - expected).max()) < 1e-9 * scale
+    assert float(jnp.abs(paper - expected).max()) > 1e-2 * scale
+
+
+def test_solver_errors(horse_rig):
+    with pytest.raises(ValueError, match="at least 1 iteration"):
+        mvcjax.FixedG(iterations=0)
+    with pytest.raises(TypeError, match="mvcjax solver"):
+        horse_rig.solve(horse_rig.handle_positions, solver="gauss-newton")
+    with pytest.raises(ValueError, match="init must be"):
+        horse_rig.solve(horse_rig.handle_positions, init="zero")
