@@ -1,3 +1,4 @@
+import jax.numpy as jnp
 import numpy as np
 import pytest
 import shapely
@@ -61,3 +62,38 @@ def test_holes_are_respected(ring_shape):
     mesh = shapely.union_all([shapely.Polygon(np.asarray(rig.shape_mesh.vertices)[t])
                               for t in np.asarray(rig.shape_mesh.faces)])
     assert mesh.area == pytest.approx(ring_shape.area, rel=1e-9)
+
+
+def test_close_parts_move_independently(horse):
+    """One front hoof dragged: the other follows as in the full solve on the shape mesh,
+    not as with a control polygon from a plain offset, whose triangles bridge the slot."""
+    from mvcjax._meshing import _simplify_ring, triangulate_control
+
+    handles = np.array([[280.0, 20], [62, 20], [125, 27], [200, 230], [372, 238], [262, 95]])
+    ours = mvcjax.Rig.build(horse, handles)
+    coarse = mvcjax.Rig.build(horse, handles, shape_spacing=10.0)
+    full = mvcjax.Rig.build(horse, handles, shape_spacing=10.0, control=(
+        np.asarray(coarse.shape_mesh.vertices), np.asarray(coarse.shape_mesh.faces)))
+    offset = horse.polygon.buffer(3.0)
+    inside, outside = offset.buffer(1e-6), horse.polygon.buffer(0.3)
+    loop = _simplify_ring(np.asarray(offset.exterior.coords)[:-1], 26.0, inside, outside)
+    cm = ours.control_mesh
+    bridged = mvcjax.Rig.build(horse, handles, control=triangulate_control(
+        [loop], np.asarray(cm.vertices[cm.inner])))
+    assert shapely.Polygon(loop).covers(shapely.Point(260.5, 40.0))  # it does bridge
+
+    solver = mvcjax.FixedG(iterations=5000, anderson=5, stop_early=True, rtol=1e-9)
+
+    def other_hoof(rig, offset):
+        targets = rig.handle_positions.at[0].add(jnp.asarray(offset))
+        out, info = rig.deform(targets, solver, return_info=True)
+        assert bool(info.converged)
+        rest = np.asarray(rig.shape_mesh.vertices)
+        k = int(np.argmin(np.linalg.norm(rest - [255.0, 22.0], axis=1)))
+        return np.asarray(out[k]) - rest[k]
+
+    for offset in [[-40.0, 0.0], [40.0, 30.0]]:
+        reference = other_hoof(full, offset)
+        ours_error = np.linalg.norm(other_hoof(ours, offset) - reference)
+        bridged_error = np.linalg.norm(other_hoof(bridged, offset) - reference)
+        assert ours_error < 0.25 * bridged_error, (offset, ours_error, bridged_error)
