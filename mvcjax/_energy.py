@@ -168,18 +168,37 @@ def operators(energy: Energy) -> tuple[Float[Array, "p n"], ...]:
 
 
 class FixedGFactor(eqx.Module):
-    """The paper's `G = (A^T A)^{-1} A^T` (eq. 8), split by the right-hand side it acts on.
+    """The paper's `G = (A^T A)^{-1} A^T` (eq. 8), and the local step's data, ready to iterate.
 
     With `b(V) = [delta(V); 0; e(V); U]` and the weights folded in, one iteration is
-    `V <- G_shape @ [delta(V); e(V)] + G_handle @ U`.
+    `V <- G_shape @ [delta(V); e(V)] + G_handle @ U`. The Laplacian and edge rows are
+    merged so that the local step is one gather and one fused update: row `r` is
+    `y_r = sum_k coef[r, k] V[rows[r, k]]`, and its target is `length[r] y_r / |y_r|`.
 
     Attributes:
-        shape: `(n, p + e)` the columns acting on `delta` and `e`.
+        shape: `(n, p + e)` the columns of `G` acting on `delta` and `e`.
         handle: `(n, h)` the columns acting on the handle targets.
+        rows: `(p + e, 3)` vertex indices of each Laplacian and edge row.
+        coef: `(p + e, 3)` their coefficients (`1, -1/2, -1/2` and `1, -1, 0`).
+        length: `(p + e,)` rest lengths of those rows.
     """
 
-    shape: Float[Array, "n pe"]
+    shape: Float[Array, "n m"]
     handle: Float[Array, "n h"]
+    rows: Int[Array, "m 3"]
+    coef: Float[Array, "m 3"]
+    length: Float[Array, " m"]
+
+    def step(self, vertices: Float[Array, "n 2"], handle_part: Float[Array, "n 2"]):
+        """One fixed-G iteration `G b(V)`, given `handle_part = G_handle @ U`."""
+        # Points as complex numbers: one scalar gather per row instead of a row gather.
+        z = jax.lax.complex(vertices[:, 0], vertices[:, 1])
+        y = jnp.sum(self.coef * z[self.rows], axis=1)
+        sq = jnp.real(y) ** 2 + jnp.imag(y) ** 2
+        nonzero = sq > 0
+        scale = jnp.where(nonzero, self.length * jax.lax.rsqrt(jnp.where(nonzero, sq, 1.0)), 0.0)
+        rhs = jnp.stack([jnp.real(y) * scale, jnp.imag(y) * scale], axis=1)
+        return self.shape @ rhs + handle_part
 
 
 @jax.jit
@@ -195,7 +214,19 @@ def fixed_g_factor(energy: Energy) -> FixedGFactor:
     factor = jax.scipy.linalg.cho_factor(normal)
     g = jax.scipy.linalg.cho_solve(factor, rhs)
     split = lap.shape[0] + length.shape[0]
-    return FixedGFactor(shape=g[:, :split], handle=g[:, split:])
+    dtype = energy.rest.dtype
+    e = energy.edges
+    p = energy.laplacian_index.shape[0]
+    return FixedGFactor(
+        shape=g[:, :split],
+        handle=g[:, split:],
+        rows=jnp.concatenate([energy.laplacian_index, jnp.stack([e[:, 0], e[:, 1], e[:, 1]], 1)]),
+        coef=jnp.concatenate([
+            jnp.broadcast_to(jnp.array([1.0, -0.5, -0.5], dtype), (p, 3)),
+            jnp.broadcast_to(jnp.array([1.0, -1.0, 0.0], dtype), (e.shape[0], 3)),
+        ]),
+        length=jnp.concatenate([energy.laplacian_length, energy.edge_length]),
+    )
 
 
 def rigid_alignment(

@@ -6,18 +6,10 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array
 
-from .._energy import Energy, FixedGFactor, edge_targets, laplacian_targets, total_energy
+from .._energy import total_energy
 from ._base import AbstractSolver, SolveInfo
-
-
-def fixed_g_step(
-    energy: Energy, factor: FixedGFactor, vertices: Float[Array, "n 2"], handle_part
-) -> Float[Array, "n 2"]:
-    """One iteration: re-evaluate `delta(V)` and `e(V)`, then apply `G`."""
-    rhs = jnp.concatenate([laplacian_targets(energy, vertices), edge_targets(energy, vertices)])
-    return factor.shape @ rhs + handle_part
 
 
 class _Anderson(eqx.Module):
@@ -102,7 +94,7 @@ class FixedG(AbstractSolver):
         shape = init.shape
 
         def plain(v):
-            return fixed_g_step(energy, factor, v, handle_part)
+            return factor.step(v, handle_part)
 
         if self.anderson:
 
