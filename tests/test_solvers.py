@@ -147,3 +147,19 @@ def test_solver_errors(horse_rig):
         horse_rig.solve(horse_rig.handle_positions, solver="gauss-newton")
     with pytest.raises(ValueError, match="init must be"):
         horse_rig.solve(horse_rig.handle_positions, init="zero")
+
+
+def test_gradient_through_gauss_newton(horse_rig):
+    # Implicit differentiation (optimistix); FixedG's unrolled gradient is in test_rig.
+    solver = mvcjax.GaussNewton()
+    targets = targets_for(horse_rig, 0, [30.0, 0.0])
+    landmark = 50
+
+    def loss(t):
+        return jnp.sum(horse_rig.deform(t, solver)[landmark] ** 2)
+
+    g = jax.grad(loss)(targets)
+    direction = jax.random.normal(jax.random.key(4), targets.shape)
+    h = 1e-3
+    fd = (loss(targets + h * direction) - loss(targets - h * direction)) / (2 * h)
+    assert float(jnp.sum(g * direction)) == pytest.approx(float(fd), rel=1e-4)
