@@ -187,17 +187,12 @@ def boundary_loops(faces: Int[np.ndarray, "f 3"]) -> list[np.ndarray]:
     u = faces.reshape(-1)
     v = np.roll(faces, -1, axis=1).reshape(-1)
     edges = set(zip(u.tolist(), v.tolist()))
-    nxt = {a: b for a, b in edges if (b, a) not in edges}
+    successor = {a: b for a, b in edges if (b, a) not in edges}
     loops = []
-    while nxt:
-        start, _ = nxt.popitem()
+    while successor:
+        start = next(iter(successor))
         loop = [start]
-        nxt[start] = _
-        cur = start
-        while True:
-            cur = nxt.pop(cur)
-            if cur == start:
-                break
-            loop.append(cur)
+        while (nxt := successor.pop(loop[-1])) != start:
+            loop.append(nxt)
         loops.append(np.asarray(loop, np.int64))
     return loops

@@ -42,8 +42,8 @@ def _insert_on_boundary(rings: list[np.ndarray], point: np.ndarray, tol: float):
         d = np.linalg.norm(a + t[:, None] * ab - point, axis=1)
         k = int(np.argmin(d))
         if best is None or d[k] < best[0]:
-            best = (d[k], r, k, t[k])
-    _, r, k, t = best
+            best = (d[k], r, k)
+    _, r, k = best
     ring = rings[r]
     near = np.linalg.norm(ring - point, axis=1)
     if near.min() <= tol:

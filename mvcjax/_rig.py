@@ -288,8 +288,6 @@ class Rig(eqx.Module):
                 f"targets must have shape ({h}, 2), one (x, y) per handle, got {targets.shape}; "
                 "for several frames, use jax.vmap over a leading axis."
             )
-        if not jnp.issubdtype(targets.dtype, jnp.floating):
-            targets = targets.astype(self.energy.rest.dtype)
         return targets.astype(self.energy.rest.dtype)
 
     def solve(

@@ -33,3 +33,11 @@ def ring_shape():
 def drag(rig, offsets):
     """Targets: the handles' rest positions plus `offsets` (h, 2)."""
     return rig.handle_positions + jnp.asarray(offsets, rig.handle_positions.dtype)
+
+
+def directional_derivatives(f, x, seed=0, h=1e-5):
+    """`(grad f(x) . d, central finite difference along d)` for a random direction `d`."""
+    d = jax.random.normal(jax.random.key(seed), x.shape, x.dtype)
+    exact = jnp.sum(jax.grad(f)(x) * d)
+    approx = (f(x + h * d) - f(x - h * d)) / (2 * h)
+    return float(exact), float(approx)
