@@ -26,10 +26,23 @@ def _ring_segments(offset: int, n: int) -> np.ndarray:
     return np.stack([offset + i, offset + (i + 1) % n], axis=1)
 
 
-def _hole_points(rings) -> np.ndarray:
-    """A point strictly inside each hole ring (for Triangle's hole list)."""
-    pts = [shapely.Polygon(r).representative_point().coords[0] for r in rings]
-    return np.asarray(pts, dtype=np.float64).reshape(-1, 2)
+def _triangulate(rings: list[np.ndarray], points: np.ndarray, options: str):
+    """Triangle on the closed `rings` (the first outer, the others holes) plus `points`.
+
+    Vertices are numbered ring after ring, then the points; returns Triangle's output
+    and the input vertices.
+    """
+    sizes = [len(r) for r in rings]
+    offsets = np.cumsum([0, *sizes])
+    vertices = np.concatenate([*rings, np.reshape(points, (-1, 2))])
+    data = dict(
+        vertices=vertices,
+        segments=np.concatenate([_ring_segments(o, n) for o, n in zip(offsets, sizes)]),
+    )
+    if len(rings) > 1:
+        inside = [shapely.Polygon(r).representative_point().coords[0] for r in rings[1:]]
+        data["holes"] = np.asarray(inside, dtype=np.float64)
+    return triangle.triangulate(data, options), vertices
 
 
 def _insert_on_boundary(rings: list[np.ndarray], point: np.ndarray, tol: float):
@@ -69,16 +82,8 @@ def triangulate_shape(
     rings = [_resample_ring(r, spacing) for r in shape.rings]
     for p in handles[on_boundary]:
         _insert_on_boundary(rings, p, tol)
-    inner = handles[~on_boundary]
-    sizes = [len(r) for r in rings]
-    offsets = np.cumsum([0, *sizes])
-    vertices = np.concatenate([*rings, inner])
-    segments = np.concatenate([_ring_segments(o, n) for o, n in zip(offsets, sizes)])
-    data = dict(vertices=vertices, segments=segments)
-    if shape.holes:
-        data["holes"] = _hole_points(shape.holes)
     max_area = np.sqrt(3.0) / 4.0 * spacing**2
-    out = triangle.triangulate(data, f"pq28a{max_area:.17g}Q")
+    out, _ = _triangulate(rings, handles[~on_boundary], f"pq28a{max_area:.17g}Q")
     verts, faces = np.asarray(out["vertices"], np.float64), np.asarray(out["triangles"], np.int64)
     handle_idx = cKDTree(verts).query(handles)[1]
     return verts, _counter_clockwise(verts, faces), handle_idx.astype(np.int64)
@@ -251,16 +256,7 @@ def triangulate_control(
 
     Vertices are numbered loop after loop, then the inner points.
     """
-    sizes = [len(lp) for lp in loops]
-    offsets = np.cumsum([0, *sizes])
-    vertices = np.concatenate([*loops, inner_points])
-    data = dict(
-        vertices=vertices,
-        segments=np.concatenate([_ring_segments(o, n) for o, n in zip(offsets, sizes)]),
-    )
-    if len(loops) > 1:
-        data["holes"] = _hole_points(loops[1:])
-    out = triangle.triangulate(data, "pQ")
+    out, vertices = _triangulate(loops, inner_points, "pQ")
     if len(out["vertices"]) != len(vertices):
         raise ValueError(
             "The control polygon crosses itself or passes through an inner control vertex; "
