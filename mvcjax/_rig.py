@@ -288,6 +288,8 @@ class Rig(eqx.Module):
                 f"targets must have shape ({h}, 2), one (x, y) per handle, got {targets.shape}; "
                 "for several frames, use jax.vmap over a leading axis."
             )
+        if not isinstance(targets, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(targets))):
+            raise ValueError("targets contain NaN or infinite values; give finite (x, y) targets.")
         return targets.astype(self.energy.rest.dtype)
 
     def solve(

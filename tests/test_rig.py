@@ -161,6 +161,12 @@ def test_bad_handles_and_targets_are_explained(horse, horse_rig):
         mvcjax.Rig.build(horse, np.zeros((0, 2)))
     with pytest.raises(ValueError, match=r"targets must have shape \(5, 2\)"):
         horse_rig.deform(jnp.zeros((4, 2)))
+    with pytest.raises(ValueError, match="NaN or infinite"):
+        horse_rig.deform(horse_rig.handle_positions.at[0, 0].set(jnp.nan))
+    with pytest.raises(ValueError, match="finite number >= 0"):
+        mvcjax.Weights(length=-1.0)
+    with pytest.raises(ValueError, match="positive weight"):
+        mvcjax.Weights(handle=0.0)
     with pytest.raises(TypeError, match="mvcjax.Shape"):
         mvcjax.Rig.build(np.zeros((3, 2)), [[0.0, 0.0]])
     with pytest.raises(ValueError, match="positive length"):
