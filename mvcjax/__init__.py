@@ -12,6 +12,11 @@ from ._energy import (
     residuals as residuals,
     total_energy as total_energy,
 )
+from ._metrics import (
+    difference as difference,
+    flipped_triangles as flipped_triangles,
+    smoothness as smoothness,
+)
 from ._rig import ControlMesh as ControlMesh, Rig as Rig, ShapeMesh as ShapeMesh, Skinning as Skinning
 from ._shape import Shape as Shape
 from ._solvers import (

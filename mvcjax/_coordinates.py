@@ -196,3 +196,40 @@ def boundary_loops(faces: Int[np.ndarray, "f 3"]) -> list[np.ndarray]:
             loop.append(nxt)
         loops.append(np.asarray(loop, np.int64))
     return loops
+
+
+def vertex_stars(faces: Int[np.ndarray, "f 3"], count: int) -> tuple[np.ndarray, np.ndarray]:
+    """The star polygon of every vertex, counter-clockwise, padded.
+
+    An interior vertex's star is its ordered 1-ring; a boundary vertex's is the vertex
+    itself followed by its fan of neighbours (the polygon of the triangles around it).
+
+    Returns vertex indices `(count, k)` and which are valid `(count, k)`.
+    """
+    nxt: dict[int, dict[int, int]] = {}
+    for a, b, c in np.asarray(faces).tolist():
+        nxt.setdefault(a, {})[b] = c
+        nxt.setdefault(b, {})[c] = a
+        nxt.setdefault(c, {})[a] = b
+    stars = []
+    for v in range(count):
+        around = nxt.get(v, {})
+        ends = set(around.values())
+        starts = [b for b in around if b not in ends]
+        if starts:  # boundary vertex: walk the fan from its first boundary edge
+            ring = [v, starts[0]]
+            while ring[-1] in around:
+                ring.append(around[ring[-1]])
+        else:
+            first = next(iter(around))
+            ring = [first]
+            while (step := around[ring[-1]]) != first:
+                ring.append(step)
+        stars.append(ring)
+    k = max(len(r) for r in stars)
+    idx = np.zeros((count, k), np.int64)
+    valid = np.zeros((count, k), bool)
+    for i, r in enumerate(stars):
+        idx[i, : len(r)] = r
+        valid[i, : len(r)] = True
+    return idx, valid

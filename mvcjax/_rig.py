@@ -180,6 +180,7 @@ class Rig(eqx.Module):
         margin: float | None = None,
         weights: Weights | None = None,
         control=None,
+        skinning: str = "mvc",
         dtype=None,
     ) -> Rig:
         """Mesh the shape, build the control mesh, and precompute everything.
@@ -197,6 +198,10 @@ class Rig(eqx.Module):
             control: a control mesh of your own, as `(vertices (c, 2), faces (f, 3))`,
                 covering the shape, with a vertex at every handle. Its boundary loops are
                 `V_CP`, every other vertex is `V_CG`.
+            skinning: how the shape mesh follows the control mesh: `"mvc"` (the
+                paper's eq. 1), `"blended"` (MVC over the corners' stars blended by
+                barycentric coordinates: continuous) or `"barycentric"` (the paper's
+                "control mesh only").
             dtype: float dtype of the rig's arrays (default: JAX's default float).
         """
         if not isinstance(shape, Shape):
@@ -232,7 +237,7 @@ class Rig(eqx.Module):
             )
 
         skin_index, skin_weight = _skinning_weights(
-            shape_vertices, control_vertices, control_faces, 1e-9 * shape.diagonal
+            shape_vertices, control_vertices, control_faces, skinning
         )
         energy = _energy_data(
             control_vertices, control_faces, loops, inner, control_handles, weights, dtype,
@@ -347,7 +352,24 @@ class Rig(eqx.Module):
         )
 
 
-def _skinning_weights(shape_vertices, control_vertices, control_faces, tol):
+SKINNINGS = ("mvc", "blended", "barycentric")
+
+
+def _skinning_weights(shape_vertices, control_vertices, control_faces, method):
+    """Each shape vertex as a combination of control vertices: `(index, weight)`, `(n, k)`.
+
+    - "mvc": the paper's eq. 1, MVC over the containing triangle and its edge neighbours.
+      Discontinuous across control edges: neighbours on either side use other polygons.
+    - "blended": MVC over the star of each corner of the containing triangle, blended by
+      the barycentric coordinates `b`; two triangles sharing an edge agree along it, so
+      the map is continuous. Each corner's term is corrected by `b_v (e_v - MVC(v))`,
+      which vanishes on the star's rim and makes the map interpolate the control
+      vertices (a shape vertex on a control vertex follows it exactly).
+    - "barycentric": the containing triangle's barycentric coordinates (the paper's
+      "control mesh only"): continuous, piecewise linear, with kinks along control edges.
+    """
+    if method not in SKINNINGS:
+        raise ValueError(f"skinning must be one of {SKINNINGS}, got {method!r}.")
     face, depth = coords.locate_points(shape_vertices, control_vertices, control_faces)
     outside = np.flatnonzero(depth < -1e-9)
     if len(outside):
@@ -356,11 +378,46 @@ def _skinning_weights(shape_vertices, control_vertices, control_faces, tol):
             f"{shape_vertices[outside[0]].round(6).tolist()}); the control mesh must cover the "
             "whole shape."
         )
-    neighbours = coords.face_neighbours(control_faces)
-    polygons, valid = coords.face_star_polygons(control_faces, neighbours)
-    index, valid = polygons[face], valid[face]
-    weights = coords.mean_value_coordinates(shape_vertices, control_vertices[index], valid)
-    return index, weights
+    corners = control_faces[face]
+    bary = coords.barycentric_coordinates(shape_vertices, control_vertices[corners])
+    if method == "barycentric":
+        return corners, bary
+    if method == "mvc":
+        polygons, valid = coords.face_star_polygons(
+            control_faces, coords.face_neighbours(control_faces)
+        )
+        index, valid = polygons[face], valid[face]
+        return index, coords.mean_value_coordinates(
+            shape_vertices, control_vertices[index], valid
+        )
+    stars, star_valid = coords.vertex_stars(control_faces, len(control_vertices))
+    # MVC of each control vertex in its own star: one-hot on the boundary, the M term's
+    # weights inside. The blend corrects by it so that a shape vertex on a control vertex
+    # follows that vertex exactly.
+    at_vertex = coords.mean_value_coordinates(control_vertices, control_vertices[stars], star_valid)
+    index, weight = [corners], [bary**2]
+    for k in range(3):
+        v = corners[:, k]
+        w = coords.mean_value_coordinates(shape_vertices, control_vertices[stars[v]], star_valid[v])
+        index.append(stars[v])
+        weight.append(bary[:, k : k + 1] * (w - bary[:, k : k + 1] * at_vertex[v]))
+    return _merge_duplicates(np.concatenate(index, axis=1), np.concatenate(weight, axis=1))
+
+
+def _merge_duplicates(index, weight):
+    """Rows of `(index, weight)` with each index once (weights summed), padded with zeros."""
+    order = np.argsort(index, axis=1, kind="stable")
+    index = np.take_along_axis(index, order, axis=1)
+    weight = np.take_along_axis(weight, order, axis=1)
+    new = np.ones(index.shape, bool)
+    new[:, 1:] = index[:, 1:] != index[:, :-1]
+    slot = np.cumsum(new, axis=1) - 1
+    rows = np.broadcast_to(np.arange(len(index))[:, None], index.shape)
+    merged_index = np.zeros((len(index), slot.max() + 1), index.dtype)
+    merged_weight = np.zeros((len(index), slot.max() + 1), weight.dtype)
+    merged_index[rows, slot] = index
+    np.add.at(merged_weight, (rows, slot), weight)
+    return merged_index, merged_weight
 
 
 def _energy_data(vertices, faces, loops, inner, handles, weights, dtype, diagonal) -> Energy:

@@ -174,3 +174,40 @@ def test_bad_handles_and_targets_are_explained(horse, horse_rig):
     with pytest.raises(ValueError, match="not a vertex of the given control mesh"):
         cm = horse_rig.control_mesh
         mvcjax.Rig.build(horse, [[101.0, 200.0]], control=(np.asarray(cm.vertices), np.asarray(cm.faces)))
+
+
+@pytest.fixture(scope="module")
+def skinned_rigs(horse):
+    return {s: mvcjax.Rig.build(horse, datasets.horse_handles(), skinning=s)
+            for s in ["mvc", "blended", "barycentric"]}
+
+
+@pytest.mark.parametrize("skinning", ["mvc", "blended", "barycentric"])
+def test_every_skinning_is_exact_at_rest_and_interpolates(skinned_rigs, skinning):
+    rig = skinned_rigs[skinning]
+    w = rig.skinning.weights
+    assert bool(jnp.all(jnp.isfinite(w)))
+    np.testing.assert_allclose(w.sum(axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(rig.skin(rig.control_mesh.vertices), rig.shape_mesh.vertices,
+                               atol=1e-9)
+    # A shape vertex on a control vertex follows it exactly, in any pose.
+    pose = rig.control_mesh.vertices + jax.random.normal(jax.random.key(5),
+                                                         rig.control_mesh.vertices.shape)
+    np.testing.assert_allclose(rig.skin(pose)[rig.shape_mesh.handles],
+                               pose[rig.control_mesh.handles], atol=1e-9)
+
+
+def test_blended_skinning_is_smoothest(skinned_rigs):
+    from mvcjax._metrics import smoothness
+
+    measured = {}
+    for name, rig in skinned_rigs.items():
+        out = rig.deform(rig.handle_positions + datasets.horse_drag())
+        measured[name] = smoothness(rig.shape_mesh.vertices, out, rig.shape_mesh.faces)
+    # The paper's per-triangle MVC jumps across control edges; the blend does not.
+    assert measured["blended"] < measured["barycentric"] < measured["mvc"], measured
+
+
+def test_unknown_skinning_is_explained(horse):
+    with pytest.raises(ValueError, match="skinning must be one of"):
+        mvcjax.Rig.build(horse, datasets.horse_handles(), skinning="linear")

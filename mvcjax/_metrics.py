@@ -1,0 +1,71 @@
+"""Measures of a deformation: difference between two results, smoothness, flips."""
+
+from __future__ import annotations
+
+import numpy as np
+from jaxtyping import Float, Int
+
+from ._coordinates import _cross
+
+
+def difference(
+    a: Float[np.ndarray, "n 2"], b: Float[np.ndarray, "n 2"], rest: Float[np.ndarray, "n 2"]
+) -> tuple[float, float]:
+    """Mean and max vertex distance between two deformed meshes, in percent of the rest
+    bounding-box diagonal."""
+    a, b, rest = (np.asarray(x, np.float64) for x in (a, b, rest))
+    diagonal = np.linalg.norm(rest.max(axis=0) - rest.min(axis=0))
+    d = np.linalg.norm(a - b, axis=1) / diagonal * 100.0
+    return float(d.mean()), float(d.max())
+
+
+def deformation_gradients(
+    rest: Float[np.ndarray, "n 2"], deformed: Float[np.ndarray, "n 2"], faces: Int[np.ndarray, "f 3"]
+) -> Float[np.ndarray, "f 2 2"]:
+    """The constant deformation gradient of each triangle (rest -> deformed)."""
+    rest, deformed = np.asarray(rest, np.float64), np.asarray(deformed, np.float64)
+    faces = np.asarray(faces)
+
+    def edges(v):
+        return np.stack([v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]]], axis=2)
+
+    return edges(deformed) @ np.linalg.inv(edges(rest))
+
+
+def interior_edges(faces: Int[np.ndarray, "f 3"]) -> Int[np.ndarray, "e 2"]:
+    """Pairs of faces sharing an edge."""
+    faces = np.asarray(faces)
+    f = len(faces)
+    u = faces.reshape(-1)
+    v = np.roll(faces, -1, axis=1).reshape(-1)
+    key = np.minimum(u, v).astype(np.int64) * (faces.max() + 1) + np.maximum(u, v)
+    owner = np.repeat(np.arange(f), 3)
+    order = np.argsort(key, kind="stable")
+    key, owner = key[order], owner[order]
+    same = np.flatnonzero(key[1:] == key[:-1])
+    return np.stack([owner[same], owner[same + 1]], axis=1)
+
+
+def smoothness(
+    rest: Float[np.ndarray, "n 2"], deformed: Float[np.ndarray, "n 2"], faces: Int[np.ndarray, "f 3"]
+) -> float:
+    """Sum over interior edges of the jump of the deformation gradient across the edge
+    (Frobenius norm): 0 for an affine map, small for a smooth deformation, large where
+    the skinning has kinks or tears along control edges."""
+    grads = deformation_gradients(rest, deformed, faces)
+    pairs = interior_edges(faces)
+    jump = grads[pairs[:, 0]] - grads[pairs[:, 1]]
+    return float(np.linalg.norm(jump, axis=(1, 2)).sum())
+
+
+def flipped_triangles(
+    rest: Float[np.ndarray, "n 2"], deformed: Float[np.ndarray, "n 2"], faces: Int[np.ndarray, "f 3"]
+) -> int:
+    """How many triangles changed orientation."""
+    faces = np.asarray(faces)
+
+    def signed(v):
+        v = np.asarray(v, np.float64)
+        return _cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
+
+    return int(np.sum(np.sign(signed(rest)) != np.sign(signed(deformed))))
