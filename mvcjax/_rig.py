@@ -123,9 +123,8 @@ def _laplacian_index(loops: list[np.ndarray]) -> np.ndarray:
 
 
 def _control_from_arrays(control, handles, tol):
-    vertices, faces = (np.asarray(a) for a in control)
-    vertices = np.asarray(vertices, np.float64)
-    faces = np.asarray(faces, np.int64)
+    vertices, faces = control
+    vertices, faces = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
     if vertices.ndim != 2 or vertices.shape[1] != 2 or faces.ndim != 2 or faces.shape[1] != 3:
         raise ValueError(
             "control must be (vertices, faces) with vertices of shape (c, 2) and faces of "
