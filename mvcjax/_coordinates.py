@@ -146,42 +146,6 @@ def face_star_polygons(
     return np.where(valid, poly, 0), valid
 
 
-def vertex_rings(
-    faces: Int[np.ndarray, "f 3"], centres: Int[np.ndarray, " c"]
-) -> tuple[Int[np.ndarray, "c k"], Bool[np.ndarray, "c k"]]:
-    """The ordered (counter-clockwise) 1-ring of each interior vertex in `centres`.
-
-    Raises ValueError for a vertex on the mesh boundary (its ring is not closed).
-    """
-    nxt: dict[int, dict[int, int]] = {}
-    for a, b, c in faces.tolist():
-        nxt.setdefault(a, {})[b] = c
-        nxt.setdefault(b, {})[c] = a
-        nxt.setdefault(c, {})[a] = b
-    rings = []
-    for v in centres.tolist():
-        around = nxt[v]
-        start = next(iter(around))
-        ring = [start]
-        while True:
-            step = around.get(ring[-1])
-            if step is None:
-                raise ValueError(f"control vertex {v} lies on the mesh boundary: it has no closed 1-ring")
-            if step == start:
-                break
-            ring.append(step)
-        if len(ring) != len(around):
-            raise ValueError(f"control vertex {v} has a non-manifold 1-ring")
-        rings.append(ring)
-    k = max(len(r) for r in rings)
-    idx = np.zeros((len(rings), k), np.int64)
-    valid = np.zeros((len(rings), k), bool)
-    for i, r in enumerate(rings):
-        idx[i, : len(r)] = r
-        valid[i, : len(r)] = True
-    return idx, valid
-
-
 def boundary_loops(faces: Int[np.ndarray, "f 3"]) -> list[np.ndarray]:
     """Boundary loops of a triangle mesh, oriented as its faces (outer CCW for CCW faces)."""
     u = faces.reshape(-1)

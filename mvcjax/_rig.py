@@ -424,7 +424,8 @@ def _energy_data(vertices, faces, loops, inner, handles, weights, dtype, diagona
     lap_vectors = vertices[lap_index[:, 0]] - 0.5 * (
         vertices[lap_index[:, 1]] + vertices[lap_index[:, 2]]
     )
-    ring, valid = coords.vertex_rings(faces, inner)
+    stars, star_valid = coords.vertex_stars(faces, len(vertices))
+    ring, valid = stars[inner], star_valid[inner]  # an inner vertex's star is its 1-ring
     ring_weight = coords.mean_value_coordinates(vertices[inner], vertices[ring], valid)
     polygon_edges = {
         tuple(sorted(e)) for lp in loops for e in zip(lp.tolist(), np.roll(lp, -1).tolist())
