@@ -11,7 +11,8 @@ from jaxtyping import Array, Float, Int
 
 from . import _coordinates as coords
 from . import _meshing as meshing
-from ._energy import Energy, FixedGFactor, Weights, fixed_g_factor, rigid_start
+from ._energy import Energy, Weights, rigid_start
+from ._factor import AbstractFactor, make_factor
 from ._shape import Shape
 from ._solvers import AbstractSolver, FixedG, SolveInfo
 
@@ -122,6 +123,15 @@ def _laplacian_index(loops: list[np.ndarray]) -> np.ndarray:
     return np.concatenate(rows)
 
 
+def _loops_and_inner(vertices, faces):
+    """A mesh's boundary loops (`V_CP`, the outer loop first) and its other vertices (`V_CG`)."""
+    loops = coords.boundary_loops(faces)
+    loops.sort(key=lambda lp: -abs(shapely.Polygon(vertices[lp]).area))
+    on_loop = np.zeros(len(vertices), bool)
+    on_loop[np.concatenate(loops)] = True
+    return loops, np.flatnonzero(~on_loop)
+
+
 def _control_from_arrays(control, handles, tol):
     vertices, faces = control
     vertices, faces = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
@@ -131,8 +141,7 @@ def _control_from_arrays(control, handles, tol):
             f"shape (f, 3), got {vertices.shape} and {faces.shape}."
         )
     faces = meshing._counter_clockwise(vertices, faces)
-    loops = coords.boundary_loops(faces)
-    loops.sort(key=lambda lp: -abs(shapely.Polygon(vertices[lp]).area))
+    loops, inner = _loops_and_inner(vertices, faces)
     dist = np.linalg.norm(vertices[None] - handles[:, None], axis=2)
     idx = np.argmin(dist, axis=1)
     bad = np.flatnonzero(dist[np.arange(len(handles)), idx] > tol)
@@ -141,9 +150,6 @@ def _control_from_arrays(control, handles, tol):
             f"handles[{bad[0]}] = {handles[bad[0]].tolist()} is not a vertex of the given "
             "control mesh; every handle must be a control vertex: add it to the mesh."
         )
-    on_loop = np.zeros(len(vertices), bool)
-    on_loop[np.concatenate(loops)] = True
-    inner = np.flatnonzero(~on_loop)
     return vertices, faces, loops, inner, idx
 
 
@@ -159,14 +165,15 @@ class Rig(eqx.Module):
         control_mesh: the small mesh that is solved.
         skinning: the mean value coordinates carrying the shape mesh (eq. 1).
         energy: the data and weights of the energy (6).
-        factor: the precomputed `G` of the fixed-G iteration.
+        factor: the precomputed global step of the fixed-G iteration (the paper's dense
+            `G`, or a sparse factor of the normal matrix for large control meshes).
     """
 
     shape_mesh: ShapeMesh
     control_mesh: ControlMesh
     skinning: Skinning
     energy: Energy
-    factor: FixedGFactor
+    factor: AbstractFactor
 
     @classmethod
     def build(
@@ -180,6 +187,7 @@ class Rig(eqx.Module):
         weights: Weights | None = None,
         control=None,
         skinning: str = "mvc",
+        factor: str | None = None,
         dtype=None,
     ) -> Rig:
         """Mesh the shape, build the control mesh, and precompute everything.
@@ -194,13 +202,21 @@ class Rig(eqx.Module):
             margin: how far outside the shape the control polygon runs, where no gap is
                 narrower than twice that (default: `control_spacing / 3`).
             weights: the term weights (default `Weights()`).
-            control: a control mesh of your own, as `(vertices (c, 2), faces (f, 3))`,
-                covering the shape, with a vertex at every handle. Its boundary loops are
-                `V_CP`, every other vertex is `V_CG`.
+            control: `None` (default) builds the paper's control mesh; `"shape"` solves on
+                the shape mesh itself (the paper's "full solve", after Weng et al.: its
+                boundary loops are `V_CP`, its interior vertices `V_CG`, every interior
+                edge is in `H`, and the skinning is the identity); or a control mesh of
+                your own, as `(vertices (c, 2), faces (f, 3))`, covering the shape, with a
+                vertex at every handle. Its boundary loops are `V_CP`, every other vertex
+                is `V_CG`.
             skinning: how the shape mesh follows the control mesh: `"mvc"` (the
                 paper's eq. 1), `"blended"` (MVC over the corners' stars blended by
                 barycentric coordinates: continuous) or `"barycentric"` (the paper's
-                "control mesh only").
+                "control mesh only"). Ignored with `control="shape"`.
+            factor: the global step of the fixed-G iteration: `"dense"` (the paper's `G`,
+                recomputed inside `jit` when weights change), `"sparse"` (a sparse LU of
+                the normal matrix, for meshes of thousands of vertices), or `None` (by
+                size: dense up to 1000 control vertices).
             dtype: float dtype of the rig's arrays (default: JAX's default float).
         """
         if not isinstance(shape, Shape):
@@ -218,6 +234,13 @@ class Rig(eqx.Module):
         shape_vertices, shape_faces, shape_handles = meshing.triangulate_shape(
             shape, shape_spacing, handles
         )
+        if isinstance(control, str) and control == "shape":
+            return cls._full(shape_vertices, shape_faces, shape_handles, weights, factor, dtype,
+                             shape.diagonal)
+        if isinstance(control, str):
+            raise ValueError(
+                f"control must be None, 'shape' or (vertices, faces), got {control!r}."
+            )
         if control is None:
             loops = meshing.control_polygon(shape, margin, control_spacing)
             inner_shape = meshing.inner_control_vertices(
@@ -238,9 +261,30 @@ class Rig(eqx.Module):
         skin_index, skin_weight = _skinning_weights(
             shape_vertices, control_vertices, control_faces, skinning
         )
+        return cls._assemble(
+            (shape_vertices, shape_faces, shape_handles),
+            (control_vertices, control_faces, loops, inner, control_handles),
+            (skin_index, skin_weight), weights, factor, dtype, shape.diagonal,
+        )
+
+    @classmethod
+    def _full(cls, vertices, faces, handles, weights, factor, dtype, diagonal) -> Rig:
+        """The shape mesh as its own control mesh, carried by the identity."""
+        loops, inner = _loops_and_inner(vertices, faces)
+        identity = (np.arange(len(vertices))[:, None], np.ones((len(vertices), 1)))
+        return cls._assemble(
+            (vertices, faces, handles),
+            (vertices, faces, loops, inner, handles),
+            identity, weights, factor, dtype, diagonal,
+        )
+
+    @classmethod
+    def _assemble(cls, shape_mesh, control_mesh, skinning, weights, factor, dtype, diagonal):
+        shape_vertices, shape_faces, shape_handles = shape_mesh
+        control_vertices, control_faces, loops, inner, control_handles = control_mesh
         energy = _energy_data(
             control_vertices, control_faces, loops, inner, control_handles, weights, dtype,
-            shape.diagonal,
+            diagonal,
         )
         as_int = lambda a: jnp.asarray(a, jnp.int32)  # noqa: E731
         return cls(
@@ -251,9 +295,9 @@ class Rig(eqx.Module):
                 jnp.asarray(control_vertices, dtype), as_int(control_faces),
                 as_int(np.concatenate(loops)), as_int(inner), as_int(control_handles),
             ),
-            skinning=Skinning(as_int(skin_index), jnp.asarray(skin_weight, dtype)),
+            skinning=Skinning(as_int(skinning[0]), jnp.asarray(skinning[1], dtype)),
             energy=energy,
-            factor=fixed_g_factor(energy),
+            factor=make_factor(energy, factor),
         )
 
     # ---- using the rig --------------------------------------------------------------
@@ -264,9 +308,13 @@ class Rig(eqx.Module):
         return self.control_mesh.vertices[self.control_mesh.handles]
 
     def with_weights(self, weights: Weights) -> Rig:
-        """The same rig with other term weights (recomputes `G`; jittable, differentiable)."""
+        """The same rig with other term weights.
+
+        Recomputes the factor: with a dense `G` this is jittable and differentiable (no
+        recompilation); a sparse factor is refactored on the host, outside `jit`.
+        """
         energy = eqx.tree_at(lambda e: e.weights, self.energy, weights.astype(self.energy.rest.dtype))
-        return eqx.tree_at(lambda r: (r.energy, r.factor), self, (energy, fixed_g_factor(energy)))
+        return eqx.tree_at(lambda r: (r.energy, r.factor), self, (energy, self.factor.rebuild(energy)))
 
     def start(self, targets: Float[Array, "h 2"], init="rigid") -> Float[Array, "c 2"]:
         """Starting control vertices: `"rigid"` (the rest mesh moved rigidly to fit the

@@ -8,6 +8,7 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+import scipy.optimize  # noqa: E402
 
 import mvcjax  # noqa: E402
 from mvcjax import datasets  # noqa: E402
@@ -41,3 +42,15 @@ def directional_derivatives(f, x, seed=0, h=1e-5):
     exact = jnp.sum(jax.grad(f)(x) * d)
     approx = (f(x + h * d) - f(x - h * d)) / (2 * h)
     return float(exact), float(approx)
+
+
+def scipy_minimum(rig, targets, start):
+    """The energy's minimum near `start` by scipy.optimize.least_squares (an independent
+    reference): control vertices `(c, 2)` and the energy there."""
+    fun = jax.jit(lambda x: mvcjax.residuals(rig.energy, x.reshape(-1, 2), targets))
+    jac = jax.jit(jax.jacfwd(fun))
+    result = scipy.optimize.least_squares(
+        lambda x: np.asarray(fun(x)), np.asarray(start).ravel(), jac=lambda x: np.asarray(jac(x)),
+        method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=5000,
+    )
+    return result.x.reshape(-1, 2), 2 * result.cost

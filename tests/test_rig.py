@@ -5,8 +5,9 @@ import pytest
 
 import mvcjax
 from mvcjax import datasets
+from mvcjax._coordinates import boundary_loops
 
-from conftest import directional_derivatives, drag
+from conftest import directional_derivatives, drag, scipy_minimum
 
 
 def test_public_arrays(horse_rig):
@@ -141,6 +142,43 @@ def test_letter_with_a_counter():
     rig = mvcjax.Rig.build(shape, [[25.0, 50.0], [25.0, 8.0]])
     out = rig.deform(drag(rig, [[0.0, 10.0], [0.0, 0.0]]))
     assert bool(jnp.all(jnp.isfinite(out)))
+
+
+@pytest.fixture(scope="module")
+def ring_full(ring_shape):
+    return mvcjax.Rig.build(ring_shape, [[35.0, 0.0], [-35.0, 0.0]], control="shape",
+                            shape_spacing=9.0)
+
+
+def test_full_solve_is_on_the_shape_mesh(ring_full):
+    sm, cm = ring_full.shape_mesh, ring_full.control_mesh
+    np.testing.assert_array_equal(cm.vertices, sm.vertices)
+    np.testing.assert_array_equal(cm.handles, sm.handles)
+    # Both boundary loops (outer and hole) are V_CP; every other vertex is V_CG.
+    loops = boundary_loops(np.asarray(sm.faces))
+    assert len(loops) == 2
+    assert sorted(np.asarray(cm.outer).tolist()) == sorted(np.concatenate(loops).tolist())
+    assert cm.outer.shape[0] + cm.inner.shape[0] == sm.vertices.shape[0]
+    assert ring_full.skinning.indices.shape == (sm.vertices.shape[0], 1)
+    np.testing.assert_allclose(ring_full.deform(ring_full.handle_positions), sm.vertices,
+                               atol=1e-10)
+
+
+def test_full_solve_reaches_the_scipy_minimum(ring_full, ring_shape):
+    targets = drag(ring_full, [[5.0, 2.0], [0.0, 0.0]])
+    solver = mvcjax.FixedG(iterations=5000, rtol=1e-11, stop_early=True, anderson=5)
+    vertices, info = ring_full.solve(targets, solver, return_info=True)
+    assert bool(info.converged), int(info.iterations)
+    minimum, minimum_energy = scipy_minimum(ring_full, targets, ring_full.start(targets))
+    assert np.abs(np.asarray(vertices) - minimum).max() < 1e-6 * ring_shape.diagonal
+    assert float(info.energy) == pytest.approx(minimum_energy, rel=1e-8)
+
+
+def test_gauss_newton_refuses_a_jacobian_that_does_not_fit(horse):
+    full = mvcjax.Rig.build(horse, datasets.horse_handles(), control="shape", shape_spacing=4.0)
+    with pytest.raises(ValueError, match="use mvcjax.FixedG"):
+        full.solve(full.handle_positions, mvcjax.GaussNewton())
+    assert bool(jnp.all(jnp.isfinite(full.deform(full.handle_positions + 5.0))))
 
 
 def test_user_control_mesh(horse, horse_rig):

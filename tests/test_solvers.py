@@ -4,11 +4,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-import scipy.optimize
 
 import mvcjax
 
-from conftest import directional_derivatives, drag
+from conftest import directional_derivatives, drag, scipy_minimum
 
 TIGHT = {
     "fixed_g": mvcjax.FixedG(iterations=20000, rtol=1e-10, stop_early=True),
@@ -61,16 +60,6 @@ def reference(horse_rig):
         return cache[key]
 
     return run
-
-
-def scipy_minimum(rig, targets, start):
-    fun = jax.jit(lambda x: mvcjax.residuals(rig.energy, x.reshape(-1, 2), targets))
-    jac = jax.jit(jax.jacfwd(fun))
-    result = scipy.optimize.least_squares(
-        lambda x: np.asarray(fun(x)), np.asarray(start).ravel(), jac=lambda x: np.asarray(jac(x)),
-        method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=5000,
-    )
-    return result.x.reshape(-1, 2), 2 * result.cost
 
 
 @pytest.mark.parametrize("handle, offset", AGREEING)

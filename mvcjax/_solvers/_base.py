@@ -7,7 +7,8 @@ import abc
 import equinox as eqx
 from jaxtyping import Array, Bool, Float, Int
 
-from .._energy import Energy, FixedGFactor
+from .._energy import Energy
+from .._factor import AbstractFactor
 
 
 class SolveInfo(eqx.Module):
@@ -36,7 +37,7 @@ class AbstractSolver(eqx.Module):
     def solve(
         self,
         energy: Energy,
-        factor: FixedGFactor,
+        factor: AbstractFactor,
         targets: Float[Array, "h 2"],
         init: Float[Array, "n 2"],
     ) -> tuple[Float[Array, "n 2"], SolveInfo]:
@@ -44,7 +45,8 @@ class AbstractSolver(eqx.Module):
 
         Args:
             energy: the rig's energy data and weights.
-            factor: the rig's precomputed `G` (solvers that do not need it ignore it).
+            factor: the rig's precomputed global step (dense `G` or a sparse factor;
+                solvers that do not need it ignore it).
             targets: `(h, 2)` handle targets.
             init: `(n, 2)` starting control vertices.
         """

@@ -89,7 +89,7 @@ class FixedG(AbstractSolver):
             raise ValueError(f"FixedG(anderson={self.anderson}): the memory must be >= 0.")
 
     def solve(self, energy, factor, targets, init):
-        handle_part = factor.handle @ targets
+        handle_part = factor.handle_part(targets)
         tol = self.rtol * energy.scale
         shape = init.shape
 

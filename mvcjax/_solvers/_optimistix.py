@@ -19,6 +19,23 @@ def _default_tol(dtype) -> float:
     return 1e-10 if jnp.finfo(dtype).bits >= 64 else 1e-5
 
 
+_JACOBIAN_LIMIT_BYTES = 2**30
+
+
+def _check_jacobian_fits(energy, dtype, name):
+    """Refuse a dense Jacobian that would not fit, with the way out, instead of running out
+    of memory (the full solve on a shape mesh of thousands of vertices)."""
+    rows = 2 * (energy.laplacian_index.shape[0] + energy.mvc_centre.shape[0]
+                + energy.edges.shape[0] + energy.handles.shape[0])
+    size = rows * 2 * energy.num_vertices * jnp.dtype(dtype).itemsize
+    if size > _JACOBIAN_LIMIT_BYTES:
+        raise ValueError(
+            f"{name} materialises the dense Jacobian of the energy, {size / 2**30:.1f} GiB for "
+            f"this rig's {energy.num_vertices} control vertices; on a mesh this large use "
+            "mvcjax.FixedG (with anderson=... and stop_early=True to solve to a tolerance)."
+        )
+
+
 class _OptimistixLeastSquares(AbstractSolver):
     """Shared plumbing: solve in coordinates scaled to the unit diagonal, report the result."""
 
@@ -30,6 +47,7 @@ class _OptimistixLeastSquares(AbstractSolver):
         raise NotImplementedError
 
     def solve(self, energy, factor, targets, init):
+        _check_jacobian_fits(energy, init.dtype, type(self).__name__)
         dtype = init.dtype
         rtol = _default_tol(dtype) if self.rtol is None else self.rtol
         atol = _default_tol(dtype) if self.atol is None else self.atol

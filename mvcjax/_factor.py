@@ -1,0 +1,304 @@
+"""The global step of the fixed-G iteration (eq. 8): `V <- (A^T W A)^{-1} A^T W b(V)`.
+
+Two factors behind one interface (`handle_part`, `step`):
+
+- `DenseFactor`: the paper's `G = (A^T W A)^{-1} A^T W`, a dense matrix computed once.
+  One step is one small matrix product: the right choice on a control mesh of a few
+  hundred vertices. It is pure JAX, so new weights recompute it inside `jit` and `grad`.
+- `SparseFactor`: the normal matrix `N = A^T W A` factored once on the host by a sparse
+  LU (SuperLU, through scipy, with a symmetric fill-reducing ordering), applied inside
+  the iteration through `jax.pure_callback` wrapped in `jax.lax.custom_linear_solve`,
+  so that `jax.grad` differentiates through it (the transposed solve is the same
+  solve: `N` is symmetric). It stores `O(nnz)` numbers where a dense `G` would store
+  `n x 3n`: the full solve on a shape mesh of 20k or 100k vertices fits in memory.
+"""
+
+from __future__ import annotations
+
+import abc
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse
+import scipy.sparse.linalg
+from jaxtyping import Array, Complex, Float, Int
+
+from ._energy import Energy
+
+
+def operator_triplets(energy: Energy) -> list[tuple[Array, Array, Array, int]]:
+    """The constant matrices `L, M, H, C` of eq. 7 as `(rows, cols, values, row_count)`.
+
+    Duplicate `(row, col)` entries add up (the zero-weight padding of the MVC rings
+    adds zeros). Pure JAX: works on traced and on concrete energies.
+    """
+    dtype = energy.rest.dtype
+    p = energy.laplacian_index.shape[0]
+    lap = (
+        jnp.repeat(jnp.arange(p), 3),
+        energy.laplacian_index.reshape(-1),
+        jnp.tile(jnp.array([1.0, -0.5, -0.5], dtype), p),
+        p,
+    )
+    g, k = energy.mvc_ring.shape
+    mvc = (
+        jnp.concatenate([jnp.arange(g), jnp.repeat(jnp.arange(g), k)]),
+        jnp.concatenate([energy.mvc_centre, energy.mvc_ring.reshape(-1)]),
+        jnp.concatenate([jnp.ones(g, dtype), -energy.mvc_weight.reshape(-1)]),
+        g,
+    )
+    e = energy.edges.shape[0]
+    length = (
+        jnp.repeat(jnp.arange(e), 2),
+        energy.edges.reshape(-1),
+        jnp.tile(jnp.array([1.0, -1.0], dtype), e),
+        e,
+    )
+    h = energy.handles.shape[0]
+    handle = (jnp.arange(h), energy.handles, jnp.ones(h, dtype), h)
+    return [lap, mvc, length, handle]
+
+
+def operators(energy: Energy) -> tuple[Float[Array, "rows n"], ...]:
+    """The constant matrices `L, M, H, C` of eq. 7, dense, `(rows, n)` each."""
+    n = energy.num_vertices
+    return tuple(
+        jnp.zeros((count, n), energy.rest.dtype).at[rows, cols].add(values)
+        for rows, cols, values, count in operator_triplets(energy)
+    )
+
+
+def sparse_operators(energy: Energy) -> tuple[scipy.sparse.csr_matrix, ...]:
+    """The constant matrices `L, M, H, C` of eq. 7 as scipy CSR matrices (float64)."""
+    n = energy.num_vertices
+    return tuple(
+        scipy.sparse.csr_matrix(
+            (np.asarray(values, np.float64), (np.asarray(rows), np.asarray(cols))),
+            shape=(count, n),
+        )
+        for rows, cols, values, count in operator_triplets(energy)
+    )
+
+
+def _local_rows(energy: Energy) -> tuple[Int[Array, "m 3"], Float[Array, "m 3"], Float[Array, " m"]]:
+    """The Laplacian and edge rows merged, so that the local step is one gather: row `r`
+    is `y_r = sum_k coef[r, k] V[rows[r, k]]`, its target `length[r] y_r / |y_r|`."""
+    dtype = energy.rest.dtype
+    e = energy.edges
+    p = energy.laplacian_index.shape[0]
+    rows = jnp.concatenate([energy.laplacian_index, jnp.stack([e[:, 0], e[:, 1], e[:, 1]], 1)])
+    coef = jnp.concatenate([
+        jnp.broadcast_to(jnp.array([1.0, -0.5, -0.5], dtype), (p, 3)),
+        jnp.broadcast_to(jnp.array([1.0, -1.0, 0.0], dtype), (e.shape[0], 3)),
+    ])
+    return rows, coef, jnp.concatenate([energy.laplacian_length, energy.edge_length])
+
+
+def _as_complex(vertices: Float[Array, "n 2"]) -> Complex[Array, " n"]:
+    # Points as complex numbers: gathering one complex scalar per index is about three
+    # times faster on the CPU than gathering a row of two floats.
+    return jax.lax.complex(vertices[:, 0], vertices[:, 1])
+
+
+def _as_points(z: Complex[Array, " n"]) -> Float[Array, "n 2"]:
+    return jnp.stack([jnp.real(z), jnp.imag(z)], axis=1)
+
+
+class AbstractFactor(eqx.Module):
+    """The global step, precomputed for one set of weights.
+
+    The local-step data is shared: the merged Laplacian and edge rows (`rows`, `coef`)
+    and their rest lengths (`length`).
+    """
+
+    rows: eqx.AbstractVar[Int[Array, "m 3"]]
+    coef: eqx.AbstractVar[Float[Array, "m 3"]]
+    length: eqx.AbstractVar[Float[Array, " m"]]
+
+    def local_targets(self, vertices: Float[Array, "n 2"]) -> Complex[Array, " m"]:
+        """`[delta(V); e(V)]`: each Laplacian and edge vector turned to its rest length."""
+        y = jnp.sum(self.coef * _as_complex(vertices)[self.rows], axis=1)
+        sq = jnp.real(y) ** 2 + jnp.imag(y) ** 2
+        nonzero = sq > 0
+        return y * jnp.where(nonzero, self.length * jax.lax.rsqrt(jnp.where(nonzero, sq, 1.0)), 0.0)
+
+    @abc.abstractmethod
+    def handle_part(self, targets: Float[Array, "h 2"]) -> Float[Array, "n 2"]:
+        """What the handle targets contribute to every step (computed once per solve)."""
+
+    @abc.abstractmethod
+    def step(
+        self, vertices: Float[Array, "n 2"], handle_part: Float[Array, "n 2"]
+    ) -> Float[Array, "n 2"]:
+        """One fixed-G iteration `G b(V)`, given `handle_part(targets)`."""
+
+    @abc.abstractmethod
+    def rebuild(self, energy: Energy) -> AbstractFactor:
+        """The same kind of factor for the energy's (new) weights."""
+
+
+class DenseFactor(AbstractFactor):
+    """The paper's dense `G` (eq. 8), its columns split by what they act on.
+
+    With the weights folded in, one step is `V <- G_shape @ [delta(V); e(V)] + G_handle @ U`.
+
+    Attributes:
+        shape: `(n, m)` the columns of `G` acting on `delta` and `e`.
+        handle: `(n, h)` the columns acting on the handle targets.
+        rows, coef, length: the local step's rows (see `AbstractFactor`).
+    """
+
+    shape: Float[Array, "n m"]
+    handle: Float[Array, "n h"]
+    rows: Int[Array, "m 3"]
+    coef: Float[Array, "m 3"]
+    length: Float[Array, " m"]
+
+    def handle_part(self, targets):
+        return self.handle @ targets
+
+    def step(self, vertices, handle_part):
+        return self.shape @ _as_points(self.local_targets(vertices)) + handle_part
+
+    def rebuild(self, energy):
+        return dense_factor(energy)
+
+
+@jax.jit
+def dense_factor(energy: Energy) -> DenseFactor:
+    """Precompute `G` for the energy's weights (pure JAX: jits, differentiates)."""
+    lap, mvc, length, handle = operators(energy)
+    w = energy.weights
+    normal = (
+        w.laplacian * lap.T @ lap + w.mvc * mvc.T @ mvc + w.length * length.T @ length
+        + w.handle * handle.T @ handle
+    )
+    rhs = jnp.concatenate([w.laplacian * lap.T, w.length * length.T, w.handle * handle.T], axis=1)
+    g = jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(normal), rhs)
+    split = lap.shape[0] + length.shape[0]
+    rows, coef, rest_length = _local_rows(energy)
+    return DenseFactor(
+        shape=g[:, :split], handle=g[:, split:], rows=rows, coef=coef, length=rest_length
+    )
+
+
+class _HostSolve:
+    """A sparse LU of the normal matrix, applied on the host to any batch of right-hand
+    sides. Hashable by identity, so that it can be a static field of a pytree."""
+
+    def __init__(self, normal: scipy.sparse.csc_matrix):
+        self.size = normal.shape[0]
+        # The normal matrix is symmetric positive definite: a symmetric ordering keeps
+        # the factor as sparse as a Cholesky factor's.
+        self.lu = scipy.sparse.linalg.splu(normal, permc_spec="MMD_AT_PLUS_A")
+
+    def __call__(self, rhs: np.ndarray) -> np.ndarray:
+        # rhs: (..., n, 2), any leading batch axes (vmap): solve them all at once as columns.
+        rhs = np.asarray(rhs)
+        lead = rhs.shape[:-2]
+        cols = np.moveaxis(rhs, -2, 0).reshape(self.size, -1).astype(np.float64)
+        out = self.lu.solve(cols).reshape((self.size, *lead, rhs.shape[-1]))
+        return np.moveaxis(out, 0, -2).astype(rhs.dtype)
+
+
+class SparseFactor(AbstractFactor):
+    """`N = A^T W A` factored once on the host; steps solve `N V = A^T W b(V)`.
+
+    Attributes:
+        rows, coef, length: the local step's rows (see `AbstractFactor`).
+        row_weight: `(m,)` the weight of each local row (Laplacian or length weight).
+        normal_rows, normal_cols, normal_values: `N` as triplets, for the matrix-vector
+            product that `custom_linear_solve` differentiates through.
+        handles: `(h,)` the handles' vertices; `handle_weight` their weight.
+        host: the host-side sparse LU of `N` (static).
+    """
+
+    rows: Int[Array, "m 3"]
+    coef: Float[Array, "m 3"]
+    length: Float[Array, " m"]
+    row_weight: Float[Array, " m"]
+    normal_rows: Int[Array, " nnz"]
+    normal_cols: Int[Array, " nnz"]
+    normal_values: Float[Array, " nnz"]
+    handles: Int[Array, " h"]
+    handle_weight: Float[Array, ""]
+    host: _HostSolve = eqx.field(static=True)
+
+    def _solve(self, rhs: Float[Array, "n 2"]) -> Float[Array, "n 2"]:
+        n = self.host.size
+
+        def matvec(x):
+            return jax.ops.segment_sum(
+                self.normal_values[:, None] * x[self.normal_cols], self.normal_rows, n
+            )
+
+        def solve(_, b):
+            return jax.pure_callback(
+                self.host, jax.ShapeDtypeStruct(b.shape, b.dtype), b, vmap_method="broadcast_all"
+            )
+
+        return jax.lax.custom_linear_solve(matvec, rhs, solve, symmetric=True)
+
+    def handle_part(self, targets):
+        n = self.host.size
+        return jnp.zeros((n, 2), targets.dtype).at[self.handles].add(self.handle_weight * targets)
+
+    def step(self, vertices, handle_part):
+        # A^T W t: scatter each row's weighted target back onto its vertices.
+        t = self.row_weight * self.local_targets(vertices)
+        z = jnp.zeros(self.host.size, t.dtype).at[self.rows.reshape(-1)].add(
+            (self.coef * t[:, None]).reshape(-1)
+        )
+        return self._solve(_as_points(z) + handle_part)
+
+    def rebuild(self, energy):
+        return sparse_factor(energy)
+
+
+def sparse_factor(energy: Energy) -> SparseFactor:
+    """Factor `N = A^T W A` for the energy's weights (on the host: not under `jit`)."""
+    if isinstance(energy.weights.handle, jax.core.Tracer):
+        raise ValueError(
+            "A sparse factor is computed on the host and cannot be rebuilt under jax.jit or "
+            "jax.grad (new weights on a rig with a sparse factor): call rig.with_weights "
+            "outside the transformation, or build the rig with factor='dense'."
+        )
+    w = energy.weights
+    lap, mvc, length, handle = sparse_operators(energy)
+    term_weights = [float(w.laplacian), float(w.mvc), float(w.length), float(w.handle)]
+    normal = sum(t * (op.T @ op) for t, op in zip(term_weights, (lap, mvc, length, handle)))
+    normal = scipy.sparse.coo_matrix(normal)
+    rows, coef, rest_length = _local_rows(energy)
+    dtype = energy.rest.dtype
+    p = energy.laplacian_index.shape[0]
+    row_weight = jnp.concatenate([
+        jnp.full(p, w.laplacian, dtype), jnp.full(energy.edges.shape[0], w.length, dtype)
+    ])
+    as_int = lambda a: jnp.asarray(a, jnp.int32)  # noqa: E731
+    return SparseFactor(
+        rows=rows,
+        coef=coef,
+        length=rest_length,
+        row_weight=row_weight,
+        normal_rows=as_int(normal.row),
+        normal_cols=as_int(normal.col),
+        normal_values=jnp.asarray(normal.data, dtype),
+        handles=energy.handles,
+        handle_weight=jnp.asarray(w.handle, dtype),
+        host=_HostSolve(normal.tocsc()),
+    )
+
+
+FACTORS = ("dense", "sparse")
+
+
+def make_factor(energy: Energy, kind: str | None = None) -> AbstractFactor:
+    """The global step's factor: `"dense"` (the paper's `G`), `"sparse"`, or by size
+    (`None`: dense up to 1000 vertices, where one product beats a sparse solve)."""
+    if kind is None:
+        kind = "dense" if energy.num_vertices <= 1000 else "sparse"
+    if kind not in FACTORS:
+        raise ValueError(f"factor must be one of {FACTORS} or None (by size), got {kind!r}.")
+    return dense_factor(energy) if kind == "dense" else sparse_factor(energy)

@@ -1,0 +1,64 @@
+"""The global step: the paper's dense G against the sparse factor of the normal matrix."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import mvcjax
+from mvcjax._factor import DenseFactor, SparseFactor, dense_factor, sparse_factor, make_factor
+
+from conftest import directional_derivatives, drag
+
+
+@pytest.fixture(scope="module")
+def small_full(ring_shape):
+    """The ring (a shape with a hole) solved on its own coarse shape mesh."""
+    return mvcjax.Rig.build(ring_shape, [[35.0, 0.0], [-35.0, 0.0]], control="shape",
+                            shape_spacing=9.0, factor="sparse", dtype=jnp.float64)
+
+
+def test_sparse_and_dense_steps_agree(small_full):
+    energy = small_full.energy
+    dense, sparse = dense_factor(energy), sparse_factor(energy)
+    assert isinstance(dense, DenseFactor) and isinstance(sparse, SparseFactor)
+    targets = drag(small_full, [[10.0, 5.0], [0.0, -3.0]])
+    v = energy.rest + jax.random.normal(jax.random.key(0), energy.rest.shape)
+    a = dense.step(v, dense.handle_part(targets))
+    b = sparse.step(v, sparse.handle_part(targets))
+    np.testing.assert_allclose(a, b, atol=1e-9 * float(energy.scale))
+
+
+def test_factor_is_chosen_by_size(horse_rig, small_full):
+    assert isinstance(horse_rig.factor, DenseFactor)
+    assert isinstance(make_factor(small_full.energy, None), DenseFactor)  # ~150 vertices
+    with pytest.raises(ValueError, match="factor must be one of"):
+        make_factor(small_full.energy, "cholesky")
+
+
+def test_gradient_through_the_sparse_solve(small_full):
+    def loss(t):
+        out = small_full.deform(t, mvcjax.FixedG(iterations=10))
+        return jnp.sum(out[::7] ** 2) / 100.0
+
+    exact, approx = directional_derivatives(loss, drag(small_full, [[6.0, 2.0], [0.0, 0.0]]))
+    assert exact == pytest.approx(approx, rel=1e-6)
+
+
+def test_vmap_through_the_sparse_solve(small_full):
+    batch = jnp.stack([drag(small_full, [[s, 0.0], [0.0, -s]]) for s in (0.0, 4.0, 9.0)])
+    together = jax.jit(jax.vmap(small_full.deform))(batch)
+    for k in range(3):
+        np.testing.assert_allclose(together[k], small_full.deform(batch[k]), atol=1e-9)
+
+
+def test_new_weights_refactor_the_sparse_factor(ring_shape, small_full):
+    weights = mvcjax.Weights(laplacian=2.0, length=0.5, handle=30.0)
+    built = mvcjax.Rig.build(ring_shape, [[35.0, 0.0], [-35.0, 0.0]], control="shape",
+                             shape_spacing=9.0, factor="sparse", weights=weights,
+                             dtype=jnp.float64)
+    targets = drag(small_full, [[8.0, 0.0], [0.0, 0.0]])
+    np.testing.assert_allclose(small_full.with_weights(weights).deform(targets),
+                               built.deform(targets), atol=1e-9)
+    with pytest.raises(ValueError, match="outside the transformation"):
+        jax.jit(lambda w: small_full.with_weights(w).deform(targets))(weights)
