@@ -163,7 +163,7 @@ class Rig(eqx.Module):
     Attributes:
         shape_mesh: the dense mesh that is drawn.
         control_mesh: the small mesh that is solved.
-        skinning: the mean value coordinates carrying the shape mesh (eq. 1).
+        skinning: the weights carrying the shape mesh (`V_S = W V_C`).
         energy: the data and weights of the energy (6).
         factor: the precomputed global step of the fixed-G iteration (the paper's dense
             `G`, or a sparse factor of the normal matrix for large control meshes).
@@ -186,7 +186,7 @@ class Rig(eqx.Module):
         margin: float | None = None,
         weights: Weights | None = None,
         control=None,
-        skinning: str = "mvc",
+        skinning: str = "blended",
         factor: str | None = None,
         dtype=None,
     ) -> Rig:
@@ -209,9 +209,10 @@ class Rig(eqx.Module):
                 your own, as `(vertices (c, 2), faces (f, 3))`, covering the shape, with a
                 vertex at every handle. Its boundary loops are `V_CP`, every other vertex
                 is `V_CG`.
-            skinning: how the shape mesh follows the control mesh: `"mvc"` (the
-                paper's eq. 1), `"blended"` (MVC over the corners' stars blended by
-                barycentric coordinates: continuous) or `"barycentric"` (the paper's
+            skinning: how the shape mesh follows the control mesh: `"blended"`
+                (default: MVC over the corners' stars blended by barycentric
+                coordinates; continuous, and the smoothest), `"mvc"` (the paper's eq. 1,
+                which jumps across control edges) or `"barycentric"` (the paper's
                 "control mesh only"). Ignored with `control="shape"`.
             factor: the global step of the fixed-G iteration: `"dense"` (the paper's `G`,
                 recomputed inside `jit` when weights change), `"sparse"` (a sparse LU of
