@@ -19,44 +19,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import subprocess
 import sys
 import time
 
+from _timing import compile_ms, environment, median_ms, spacing_for
+
 SIZES = [1500, 6000, 20000, 100000]
 QUICK_SIZES = [1500, 6000]
-
-
-def spacing_for(shape, vertices: int) -> float:
-    # Calibrated on Triangle's q28 meshes of the horse: about area / (0.513 s^2) vertices.
-    return (shape.area / (0.513 * vertices)) ** 0.5
-
-
-def median_ms(fn, args_list, repeats: int, budget_s: float = 3.0) -> float:
-    """Median wall time of `repeats` calls (fewer, but at least 5, past `budget_s`)."""
-    import jax
-    import numpy as np
-
-    jax.block_until_ready(fn(*args_list[0]))
-    times = []
-    for i in range(repeats):
-        if i >= 5 and sum(times) > budget_s:
-            break
-        args = args_list[i % len(args_list)]
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times) * 1e3)
-
-
-def compile_ms(fn, *args) -> float:
-    import jax
-
-    t0 = time.perf_counter()
-    jax.block_until_ready(fn(*args))
-    return (time.perf_counter() - t0) * 1e3
 
 
 def run(sizes, repeats: int, dtype_name: str) -> list[dict]:
@@ -155,14 +125,7 @@ def main(argv=None) -> int:
             print(_format(row))
         rows += child_rows
     if args.json:
-        meta = {
-            "benchmark": "deform",
-            "jax": jax.__version__,
-            "device": jax.devices()[0].device_kind,
-            "platform": platform.platform(),
-            "cpu_count": os.cpu_count(),
-            "repeats": repeats,
-        }
+        meta = environment(benchmark="deform", repeats=repeats)
         with open(args.json, "w") as f:
             json.dump({"meta": meta, "rows": rows}, f, indent=2)
         print(f"wrote {args.json}")

@@ -58,3 +58,29 @@ def plot_deformation(rig, shape_vertices, targets=None, ax=None, *, rest=True):
         t = np.asarray(targets)
         ax.plot(t[:, 0], t[:, 1], "x", color="k", markersize=7)
     return ax
+
+
+def plot_comparison(rig, panels, targets=None, *, size=3.6):
+    """A row of panels like the paper's figures 3 to 5: the input with both meshes, then
+    one deformed shape mesh per entry of `panels` (`{title: (n, 2) vertices}`).
+
+    Returns the matplotlib figure.
+    """
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 1 + len(panels), figsize=(size * (1 + len(panels)), size))
+    plot_rig(rig, axes[0])
+    axes[0].set_title("(ga) input, shape and control meshes", fontsize=9)
+    for ax, (title, vertices) in zip(axes[1:], panels.items()):
+        plot_deformation(rig, vertices, targets, ax)
+        ax.set_title(title, fontsize=9)
+    # One frame for all panels, so that the poses compare at a glance.
+    points = np.concatenate([np.asarray(rig.control_mesh.vertices),
+                             *(np.asarray(v) for v in panels.values())])
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    pad = 0.03 * (hi - lo).max()
+    for ax in axes:
+        ax.set_xlim(lo[0] - pad, hi[0] + pad)
+        ax.set_ylim(lo[1] - pad, hi[1] + pad)
+    fig.tight_layout()
+    return fig

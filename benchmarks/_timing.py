@@ -1,0 +1,56 @@
+"""Timing helpers shared by the benchmarks: compile once outside the timed region, block
+until ready, take the median of many calls."""
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+
+
+def spacing_for(shape, vertices: int) -> float:
+    """A shape-mesh spacing giving about `vertices` vertices.
+
+    Calibrated on Triangle's q28 meshes of the horse: about `area / (0.513 s^2)` vertices.
+    """
+    return (shape.area / (0.513 * vertices)) ** 0.5
+
+
+def median_ms(fn, args_list, repeats: int, budget_s: float = 3.0) -> float:
+    """Median wall time in ms of `repeats` calls cycling through `args_list` (fewer, but at
+    least 5, past `budget_s`); one untimed call first, every call blocked until ready."""
+    import jax
+    import numpy as np
+
+    jax.block_until_ready(fn(*args_list[0]))
+    times = []
+    for i in range(repeats):
+        if i >= 5 and sum(times) > budget_s:
+            break
+        args = args_list[i % len(args_list)]
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times) * 1e3)
+
+
+def compile_ms(fn, *args) -> float:
+    """Wall time in ms of the first (compiling) call."""
+    import jax
+
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn(*args))
+    return (time.perf_counter() - t0) * 1e3
+
+
+def environment(**extra) -> dict:
+    """What the numbers were measured on."""
+    import jax
+
+    return {
+        "jax": jax.__version__,
+        "device": jax.devices()[0].device_kind,
+        "platform": platform.platform(),
+        "cpu_count": os.cpu_count(),
+        **extra,
+    }
