@@ -73,12 +73,16 @@ def operators(energy: Energy) -> tuple[Float[Array, "rows n"], ...]:
 def sparse_operators(energy: Energy) -> tuple[scipy.sparse.csr_matrix, ...]:
     """The constant matrices `L, M, H, C` of eq. 7 as scipy CSR matrices (float64)."""
     n = energy.num_vertices
+    # One compiled call instead of dozens of eagerly dispatched small ones.
+    triplets = jax.jit(lambda e: [t[:3] for t in operator_triplets(e)])(energy)
+    counts = [a.shape[0] for a in (energy.laplacian_index, energy.mvc_centre, energy.edges,
+                                    energy.handles)]
     return tuple(
         scipy.sparse.csr_matrix(
             (np.asarray(values, np.float64), (np.asarray(rows), np.asarray(cols))),
             shape=(count, n),
         )
-        for rows, cols, values, count in operator_triplets(energy)
+        for (rows, cols, values), count in zip(triplets, counts)
     )
 
 
@@ -190,9 +194,14 @@ class _HostSolve:
 
     def __init__(self, normal: scipy.sparse.csc_matrix):
         self.size = normal.shape[0]
-        # The normal matrix is symmetric positive definite: a symmetric ordering keeps
-        # the factor as sparse as a Cholesky factor's.
-        self.lu = scipy.sparse.linalg.splu(normal, permc_spec="MMD_AT_PLUS_A")
+        # The normal matrix is symmetric positive definite: a symmetric ordering, with
+        # pivoting off so that SuperLU keeps it, gives a Cholesky-like fill. With the
+        # default partial pivoting, on the 19k-vertex horse the factor took 6.2 s instead
+        # of 0.13 s, and a solve 45 ms instead of 4.7.
+        self.lu = scipy.sparse.linalg.splu(
+            normal, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+            options=dict(SymmetricMode=True),
+        )
 
     def __call__(self, rhs: np.ndarray) -> np.ndarray:
         # rhs: (..., n, 2), any leading batch axes (vmap): solve them all at once as columns.
@@ -257,6 +266,17 @@ class SparseFactor(AbstractFactor):
         return sparse_factor(energy)
 
 
+@jax.jit
+def _sparse_local_rows(energy: Energy):
+    """The local step's rows, and the weight of each (its term's)."""
+    w = energy.weights
+    row_weight = jnp.concatenate([
+        jnp.broadcast_to(w.laplacian, energy.laplacian_index.shape[:1]),
+        jnp.broadcast_to(w.length, energy.edges.shape[:1]),
+    ])
+    return (*_local_rows(energy), row_weight.astype(energy.rest.dtype))
+
+
 def sparse_factor(energy: Energy) -> SparseFactor:
     """Factor `N = A^T W A` for the energy's weights (on the host: not under `jit`)."""
     if isinstance(energy.weights.handle, jax.core.Tracer):
@@ -270,12 +290,8 @@ def sparse_factor(energy: Energy) -> SparseFactor:
     term_weights = [float(w.laplacian), float(w.mvc), float(w.length), float(w.handle)]
     normal = sum(t * (op.T @ op) for t, op in zip(term_weights, (lap, mvc, length, handle)))
     normal = scipy.sparse.coo_matrix(normal)
-    rows, coef, rest_length = _local_rows(energy)
+    rows, coef, rest_length, row_weight = _sparse_local_rows(energy)
     dtype = energy.rest.dtype
-    p = energy.laplacian_index.shape[0]
-    row_weight = jnp.concatenate([
-        jnp.full(p, w.laplacian, dtype), jnp.full(energy.edges.shape[0], w.length, dtype)
-    ])
     as_int = lambda a: jnp.asarray(a, jnp.int32)  # noqa: E731
     return SparseFactor(
         rows=rows,
