@@ -54,3 +54,35 @@ def environment(**extra) -> dict:
         "cpu_count": os.cpu_count(),
         **extra,
     }
+
+
+def interleaved_median_ms(fns: dict, repeats: int, budget_s: float = 20.0, block: int = 8) -> dict:
+    """Median wall time in ms of each `fns[name] = (fn, args_list)`, timed in turns.
+
+    Each round runs every function `block` times back to back (cycling through its
+    arguments) and keeps the times of all but the first call of the block: the steady
+    per-frame cost, as in an interactive loop, not the cost of a cache emptied by the
+    previous method. Whatever else the machine is doing weighs on all methods alike, so
+    their ratios are measured in one run. Each function is called once untimed first
+    (compile before). About `repeats` timed calls each, at least 2 rounds, fewer rounds
+    past `budget_s`.
+    """
+    import jax
+    import numpy as np
+
+    for fn, args_list in fns.values():
+        jax.block_until_ready(fn(*args_list[0]))
+    times = {name: [] for name in fns}
+    start = time.perf_counter()
+    rounds = max(2, -(-repeats // (block - 1)))
+    for r in range(rounds):
+        if r >= 2 and time.perf_counter() - start > budget_s:
+            break
+        for name, (fn, args_list) in fns.items():
+            for i in range(block):
+                args = args_list[(r * block + i) % len(args_list)]
+                t0 = time.perf_counter()
+                jax.block_until_ready(fn(*args))
+                if i:
+                    times[name].append(time.perf_counter() - t0)
+    return {name: float(np.median(t) * 1e3) for name, t in times.items()}

@@ -9,7 +9,8 @@ horse at several shape-mesh sizes), every number of a row is measured in the sam
 - per-frame time of (da) control mesh + skinning and (ra) the full solve on the shape
   mesh, both the paper's 15 fixed-G iterations from the same start, jitted with the rig
   closed over, compiled once outside the timed region, median over many frames whose
-  targets change from frame to frame; and their ratio;
+  targets change from frame to frame, all methods timed round-robin (one frame of each
+  per round) so that their ratio is measured in one run;
 - the difference of (da), of the paper's MVC and of (na) control mesh only against (ra):
   mean and max vertex distance in percent of the rest bounding-box diagonal;
 - smoothness (sum over interior shape-mesh edges of the jump of the deformation
@@ -34,7 +35,7 @@ import sys
 import time
 from pathlib import Path
 
-from _timing import compile_ms, environment, median_ms, spacing_for
+from _timing import compile_ms, environment, interleaved_median_ms, spacing_for
 
 # The paper's Table 1 (AMD Athlon 3200+, 15 iterations; times in s and ms). Its
 # "difference" is not defined further; for the stick it reads "7.9% / 4.6%".
@@ -80,8 +81,9 @@ def _built(build):
     return rig, time.perf_counter() - t0
 
 
-def _arap(igl, full, frames, starts, repeats):
-    """libigl's ARAP on the full rig's shape mesh: precompute (s), per-frame (ms), result."""
+def _arap(igl, full):
+    """libigl's ARAP on the full rig's shape mesh, 15 iterations: `(precompute s, solve)`,
+    `solve(targets, start)` returning the `(n, 2)` result."""
     import numpy as np
 
     vertices = np.ascontiguousarray(full.shape_mesh.vertices, np.float64)
@@ -93,17 +95,13 @@ def _arap(igl, full, frames, starts, repeats):
     t0 = time.perf_counter()
     igl.arap_precomputation(vertices, faces, 2, handles, data)
     precompute = time.perf_counter() - t0
-    bcs = [np.ascontiguousarray(t, np.float64) for t in frames]
-    u0s = [np.ascontiguousarray(s, np.float64) for s in starts]
-    times = []
-    for i in range(max(repeats, 5)):
-        k = i % len(bcs)
-        t0 = time.perf_counter()
-        igl.arap_solve(bcs[k], data, u0s[k])
-        times.append(time.perf_counter() - t0)
-        if i >= 5 and sum(times) > 3.0:
-            break
-    return precompute, float(np.median(times) * 1e3), igl.arap_solve(bcs[-1], data, u0s[-1])
+
+    def solve(targets, start):
+        # arap_solve returns a new array; it does not write into the start.
+        return igl.arap_solve(np.ascontiguousarray(targets, np.float64), data,
+                              np.ascontiguousarray(start, np.float64))
+
+    return precompute, solve
 
 
 def measure(name, shape, handles, drag, options, repeats, igl, figures):
@@ -141,19 +139,23 @@ def measure(name, shape, handles, drag, options, repeats, igl, figures):
         "preprocess_s": preprocess,
         "full_preprocess_s": full_preprocess,
     }
+    timed = {}
     for key, fn in deform.items():
         row[f"{key}_compile_ms"] = compile_ms(fn, frames[0])
-        row[f"{key}_frame_ms"] = median_ms(fn, [(t,) for t in frames], repeats)
+        timed[key] = (fn, [(t,) for t in frames])
+    if igl is not None:
+        row["arap_precompute_s"], arap = _arap(igl, full)
+        # The same start as the full solve's: the rest mesh moved rigidly to the targets.
+        timed["arap"] = (arap, [(t, full.start(t)) for t in frames])
+    for key, ms in interleaved_median_ms(timed, repeats).items():
+        row[f"{key}_frame_ms"] = ms
     row["ratio"] = row["ra_frame_ms"] / row["da_frame_ms"]
+    if igl is not None:
+        row["arap_ratio_ra"] = row["ra_frame_ms"] / row["arap_frame_ms"]
 
     rest = np.asarray(ours.shape_mesh.vertices, np.float64)
     faces = np.asarray(ours.shape_mesh.faces)
-    out = {key: np.asarray(fn(targets), np.float64) for key, fn in deform.items()}
-    if igl is not None:
-        starts = [full.start(t) for t in frames]
-        row["arap_precompute_s"], row["arap_frame_ms"], out["arap"] = _arap(
-            igl, full, frames, starts, repeats)
-        row["arap_ratio_ra"] = row["ra_frame_ms"] / row["arap_frame_ms"]
+    out = {key: np.asarray(fn(*args[-1]), np.float64) for key, (fn, args) in timed.items()}
     for key, result in out.items():
         if key != "ra":
             mean, worst = mvcjax.difference(result, out["ra"], rest)
