@@ -3,6 +3,7 @@ until ready, take the median of many calls."""
 
 from __future__ import annotations
 
+import json
 import os
 import platform
 import time
@@ -43,17 +44,20 @@ def compile_ms(fn, *args) -> float:
     return (time.perf_counter() - t0) * 1e3
 
 
-def environment(**extra) -> dict:
-    """What the numbers were measured on."""
+def write_results(path: str, rows: list[dict], **meta) -> None:
+    """The rows as JSON, with what they were measured on."""
     import jax
 
-    return {
+    meta = {
         "jax": jax.__version__,
         "device": jax.devices()[0].device_kind,
         "platform": platform.platform(),
         "cpu_count": os.cpu_count(),
-        **extra,
+        **meta,
     }
+    with open(path, "w") as f:
+        json.dump({"meta": meta, "rows": rows}, f, indent=2)
+    print(f"wrote {path}")
 
 
 def interleaved_median_ms(fns: dict, repeats: int, budget_s: float = 20.0, block: int = 8) -> dict:

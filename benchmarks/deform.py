@@ -23,7 +23,7 @@ import subprocess
 import sys
 import time
 
-from _timing import compile_ms, environment, median_ms, spacing_for
+from _timing import compile_ms, median_ms, spacing_for, write_results
 
 SIZES = [1500, 6000, 20000, 100000]
 QUICK_SIZES = [1500, 6000]
@@ -125,10 +125,7 @@ def main(argv=None) -> int:
             print(_format(row))
         rows += child_rows
     if args.json:
-        meta = environment(benchmark="deform", repeats=repeats)
-        with open(args.json, "w") as f:
-            json.dump({"meta": meta, "rows": rows}, f, indent=2)
-        print(f"wrote {args.json}")
+        write_results(args.json, rows, benchmark="deform", repeats=repeats)
     return 0
 
 

@@ -30,12 +30,11 @@ with both meshes, (na) control mesh only, (da) control mesh + MVC, (ra) the full
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
 
-from _timing import compile_ms, environment, interleaved_median_ms, spacing_for
+from _timing import compile_ms, interleaved_median_ms, spacing_for, write_results
 
 # The paper's Table 1 (AMD Athlon 3200+, 15 iterations; times in s and ms). Its
 # "difference" is not defined further; for the stick it reads "7.9% / 4.6%".
@@ -268,13 +267,10 @@ def main(argv=None) -> int:
     if args.json:
         import importlib.metadata
 
-        meta = environment(
-            benchmark="table1", repeats=repeats, iterations=15,
+        write_results(
+            args.json, rows, benchmark="table1", repeats=repeats, iterations=15,
             libigl=importlib.metadata.version("libigl") if igl else "missing",
         )
-        with open(args.json, "w") as f:
-            json.dump({"meta": meta, "rows": rows}, f, indent=2)
-        print(f"wrote {args.json}")
     return 0
 
 

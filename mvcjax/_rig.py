@@ -14,7 +14,7 @@ from . import _meshing as meshing
 from ._energy import Energy, Weights, rigid_start
 from ._factor import AbstractFactor, make_factor
 from ._shape import Shape
-from ._solvers import AbstractSolver, FixedG, SolveInfo
+from ._solvers import AbstractSolver, FixedG
 
 
 class ShapeMesh(eqx.Module):

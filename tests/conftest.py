@@ -44,13 +44,13 @@ def directional_derivatives(f, x, seed=0, h=1e-5):
     return float(exact), float(approx)
 
 
-def scipy_minimum(rig, targets, start):
+def scipy_minimum(rig, targets, start, method="lm"):
     """The energy's minimum near `start` by scipy.optimize.least_squares (an independent
     reference): control vertices `(c, 2)` and the energy there."""
     fun = jax.jit(lambda x: mvcjax.residuals(rig.energy, x.reshape(-1, 2), targets))
     jac = jax.jit(jax.jacfwd(fun))
     result = scipy.optimize.least_squares(
         lambda x: np.asarray(fun(x)), np.asarray(start).ravel(), jac=lambda x: np.asarray(jac(x)),
-        method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=5000,
+        method=method, xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=5000,
     )
     return result.x.reshape(-1, 2), 2 * result.cost

@@ -146,8 +146,9 @@ def test_letter_with_a_counter():
 
 @pytest.fixture(scope="module")
 def ring_full(ring_shape):
+    # The sparse factor, as on any shape mesh above 1000 vertices; small enough for scipy.
     return mvcjax.Rig.build(ring_shape, [[35.0, 0.0], [-35.0, 0.0]], control="shape",
-                            shape_spacing=9.0)
+                            shape_spacing=9.0, factor="sparse")
 
 
 def test_full_solve_is_on_the_shape_mesh(ring_full):
@@ -169,7 +170,9 @@ def test_full_solve_reaches_the_scipy_minimum(ring_full, ring_shape):
     solver = mvcjax.FixedG(iterations=5000, rtol=1e-11, stop_early=True, anderson=5)
     vertices, info = ring_full.solve(targets, solver, return_info=True)
     assert bool(info.converged), int(info.iterations)
-    minimum, minimum_energy = scipy_minimum(ring_full, targets, ring_full.start(targets))
+    # Dogbox: on this mesh MINPACK's LM crawls (774 evaluations, 150 s) to the same point.
+    minimum, minimum_energy = scipy_minimum(ring_full, targets, ring_full.start(targets),
+                                            method="dogbox")
     assert np.abs(np.asarray(vertices) - minimum).max() < 1e-6 * ring_shape.diagonal
     assert float(info.energy) == pytest.approx(minimum_energy, rel=1e-8)
 
