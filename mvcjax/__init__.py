@@ -21,8 +21,11 @@ from ._rig import ControlMesh as ControlMesh, Rig as Rig, ShapeMesh as ShapeMesh
 from ._shape import Shape as Shape
 from ._solvers import (
     AbstractSolver as AbstractSolver,
+    Dogleg as Dogleg,
     FixedG as FixedG,
     GaussNewton as GaussNewton,
+    JaxoptGaussNewton as JaxoptGaussNewton,
+    JaxoptLevenbergMarquardt as JaxoptLevenbergMarquardt,
     LevenbergMarquardt as LevenbergMarquardt,
     SolveInfo as SolveInfo,
 )

@@ -9,31 +9,8 @@ import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
 
-from .._energy import residuals, total_energy
-from ._base import AbstractSolver, SolveInfo
-
-
-def _default_tol(dtype) -> float:
-    # Tolerances on coordinates scaled to the unit diagonal: near sqrt(eps) is what a
-    # least-squares fit can resolve in that precision.
-    return 1e-10 if jnp.finfo(dtype).bits >= 64 else 1e-5
-
-
-_JACOBIAN_LIMIT_BYTES = 2**30
-
-
-def _check_jacobian_fits(energy, dtype, name):
-    """Refuse a dense Jacobian that would not fit, with the way out, instead of running out
-    of memory (the full solve on a shape mesh of thousands of vertices)."""
-    rows = 2 * (energy.laplacian_index.shape[0] + energy.mvc_centre.shape[0]
-                + energy.edges.shape[0] + energy.handles.shape[0])
-    size = rows * 2 * energy.num_vertices * jnp.dtype(dtype).itemsize
-    if size > _JACOBIAN_LIMIT_BYTES:
-        raise ValueError(
-            f"{name} materialises the dense Jacobian of the energy, {size / 2**30:.1f} GiB for "
-            f"this rig's {energy.num_vertices} control vertices; on a mesh this large use "
-            "mvcjax.FixedG (with anderson=... and stop_early=True to solve to a tolerance)."
-        )
+from ._base import AbstractSolver
+from ._least_squares import ScaledProblem, check_jacobian_fits, default_tol
 
 
 class _OptimistixLeastSquares(AbstractSolver):
@@ -47,30 +24,19 @@ class _OptimistixLeastSquares(AbstractSolver):
         raise NotImplementedError
 
     def solve(self, energy, factor, targets, init):
-        _check_jacobian_fits(energy, init.dtype, type(self).__name__)
-        dtype = init.dtype
-        rtol = _default_tol(dtype) if self.rtol is None else self.rtol
-        atol = _default_tol(dtype) if self.atol is None else self.atol
-        centre = energy.rest.mean(axis=0)
-        scale = energy.scale
-
-        def fn(y, args):
-            return residuals(energy, y * scale + centre, targets) / scale
-
+        check_jacobian_fits(energy, init.dtype, type(self).__name__)
+        rtol = default_tol(init.dtype) if self.rtol is None else self.rtol
+        atol = default_tol(init.dtype) if self.atol is None else self.atol
+        problem = ScaledProblem(energy, targets)
         sol = optx.least_squares(
-            fn,
+            lambda y, args: problem.residuals(y),
             self._solver(rtol, atol),
-            (init - centre) / scale,
+            problem.scaled(init),
             max_steps=self.max_steps,
             throw=False,
         )
-        vertices = sol.value * scale + centre
-        info = SolveInfo(
-            converged=sol.result == optx.RESULTS.successful,
-            iterations=jnp.asarray(sol.stats["num_steps"], jnp.int32),
-            energy=total_energy(energy, vertices, targets),
-        )
-        return vertices, info
+        return problem.result(sol.value, sol.result == optx.RESULTS.successful,
+                              sol.stats["num_steps"])
 
 
 class _DampedGaussNewton(optx.AbstractGaussNewton):
@@ -117,3 +83,14 @@ class LevenbergMarquardt(_OptimistixLeastSquares):
 
     def _solver(self, rtol, atol):
         return optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=lx.Normal(lx.Cholesky()))
+
+
+class Dogleg(_OptimistixLeastSquares):
+    """Powell's dogleg trust-region method on the energy (6) by `optimistix.Dogleg`.
+
+    Same conventions as `GaussNewton`: Cholesky on the normal equations of the
+    forward-mode Jacobian, tolerances on coordinates scaled to the unit diagonal.
+    """
+
+    def _solver(self, rtol, atol):
+        return optx.Dogleg(rtol=rtol, atol=atol, linear_solver=lx.Normal(lx.Cholesky()))

@@ -1,0 +1,69 @@
+"""jaxopt's least-squares solvers on the residuals of the energy (6).
+
+jaxopt is no longer maintained and warns so on import; mvcjax imports it lazily, with that
+one warning silenced, and pins the version it was tested with (0.8.5).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import equinox as eqx
+
+from ._base import AbstractSolver
+from ._least_squares import ScaledProblem, check_jacobian_fits
+
+
+def _jaxopt():
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="JAXopt is no longer maintained",
+                                category=DeprecationWarning)
+        import jaxopt
+    return jaxopt
+
+
+class _JaxoptLeastSquares(AbstractSolver):
+    """Shared plumbing: run a jaxopt solver on the scaled residuals, report the result.
+
+    Attributes:
+        tol: tolerance on jaxopt's error, the norm of the gradient of half the squared
+            residuals in coordinates scaled to the unit diagonal (default 1e-8 in
+            float64, 1e-4 in float32: a gradient, not a step, so about the square of
+            the step tolerance of the optimistix solvers' scale).
+        max_steps: the step budget; `converged` is false if it ran out first.
+    """
+
+    tol: float | None = eqx.field(default=None, static=True)
+    max_steps: int = eqx.field(default=256, static=True)
+
+    def _solver(self, residual_fun, tol: float):
+        raise NotImplementedError
+
+    def solve(self, energy, factor, targets, init):
+        check_jacobian_fits(energy, init.dtype, type(self).__name__)
+        tol = (1e-8 if init.dtype.itemsize >= 8 else 1e-4) if self.tol is None else self.tol
+        problem = ScaledProblem(energy, targets)
+        shape = init.shape
+        # Flat parameters: jaxopt's Levenberg-Marquardt materialises the Jacobian as a matrix.
+        # Gradients are implicit: jaxopt differentiates the optimality condition.
+        solver = self._solver(lambda x: problem.residuals(x.reshape(shape)), tol)
+        x, state = solver.run(problem.scaled(init).reshape(-1))
+        return problem.result(x.reshape(shape), state.error <= tol, state.iter_num)
+
+
+class JaxoptGaussNewton(_JaxoptLeastSquares):
+    """Gauss-Newton by `jaxopt.GaussNewton` (full steps, no line search)."""
+
+    def _solver(self, residual_fun, tol):
+        return _jaxopt().GaussNewton(residual_fun=residual_fun, maxiter=self.max_steps, tol=tol)
+
+
+class JaxoptLevenbergMarquardt(_JaxoptLeastSquares):
+    """Levenberg-Marquardt by `jaxopt.LevenbergMarquardt`, Cholesky on the normal equations
+    of the materialised Jacobian."""
+
+    def _solver(self, residual_fun, tol):
+        return _jaxopt().LevenbergMarquardt(
+            residual_fun=residual_fun, maxiter=self.max_steps, tol=tol, xtol=0.0, gtol=0.0,
+            solver="cholesky", materialize_jac=True,
+        )
