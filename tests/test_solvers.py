@@ -1,5 +1,8 @@
 """Solvers against each other and against scipy.optimize.least_squares, on the horse."""
 
+import subprocess
+import sys
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -166,3 +169,18 @@ def test_gradient_through_gauss_newton(horse_rig):
 
     exact, approx = directional_derivatives(loss, targets, seed=4, h=1e-3)
     assert exact == pytest.approx(approx, rel=1e-4)
+
+
+def test_jaxopt_does_not_warn_users():
+    # jaxopt warns on import that it is unmaintained; mvcjax keeps that out of sight.
+    code = (
+        "import warnings; warnings.simplefilter('always')\n"
+        "with warnings.catch_warnings(record=True) as seen:\n"
+        "    import mvcjax\n"
+        "    from mvcjax import datasets\n"
+        "    rig = mvcjax.Rig.build(datasets.stick(), datasets.stick_handles())\n"
+        "    rig.solve(rig.handle_positions, mvcjax.JaxoptGaussNewton(max_steps=2))\n"
+        "print([str(w.message) for w in seen if 'JAXopt' in str(w.message)])\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout
