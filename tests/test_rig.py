@@ -34,6 +34,13 @@ def test_skinning_weights_are_sound(horse_rig):
     assert float(jnp.max(handle_rows, axis=1).min()) == 1.0
 
 
+def test_dense_skinning_matrix_is_the_same_map(horse_rig):
+    pose = horse_rig.control_mesh.vertices + jax.random.normal(
+        jax.random.key(2), horse_rig.control_mesh.vertices.shape)
+    dense = horse_rig.skinning.matrix(pose.shape[0])
+    np.testing.assert_allclose(dense @ pose, horse_rig.skin(pose), atol=1e-9)
+
+
 def test_rest_targets_give_the_rest_shape(horse_rig):
     out = horse_rig.deform(horse_rig.handle_positions)
     np.testing.assert_allclose(out, horse_rig.shape_mesh.vertices, atol=1e-9)

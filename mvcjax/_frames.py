@@ -1,0 +1,91 @@
+"""Many frames at once: the deformation vmapped over a batch of targets, in chunks, and
+sharded over devices."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from jaxtyping import Array, Float
+
+from ._rig import Rig
+from ._solvers import AbstractSolver, FixedG
+
+
+def _deform_chunked(rig: Rig, targets, solver: AbstractSolver, chunk: int):
+    # Skinning as one dense product per chunk: vmapped, the gather of every frame's rows
+    # is ten times slower than the matrix product with all the chunk's frames at once.
+    weights = rig.skinning.matrix(rig.control_mesh.vertices.shape[0])
+    return jax.lax.map(lambda t: weights @ rig.solve(t, solver), targets, batch_size=chunk)
+
+
+@eqx.filter_jit
+def _deform_one_device(rig: Rig, targets, solver: AbstractSolver, chunk: int):
+    return _deform_chunked(rig, targets, solver, chunk)
+
+
+@eqx.filter_jit
+def _deform_sharded(rig: Rig, targets, solver: AbstractSolver, chunk: int, mesh: Mesh):
+    # shard_map: each device maps over its own frames (a lax.map over a sharded axis
+    # would gather the frames first).
+    return jax.shard_map(
+        lambda r, t: _deform_chunked(r, t, solver, chunk),
+        mesh=mesh,
+        in_specs=(PartitionSpec(), PartitionSpec("frames")),
+        out_specs=PartitionSpec("frames"),
+        # The solver's loops carry values that vary over devices from constants that do
+        # not (the rig): no cross-device communication happens, so skip the check.
+        check_vma=False,
+    )(rig, targets)
+
+
+def deform_frames(
+    rig: Rig,
+    targets: Float[Array, "frames h 2"],
+    solver: AbstractSolver = FixedG(),
+    *,
+    chunk: int = 256,
+    devices=None,
+) -> Float[Array, "frames n 2"]:
+    """Deformed shape-mesh vertices for every frame of `targets`.
+
+    One compiled program (cached by shapes and solver, like any `jit`) runs the frames
+    vmapped, `chunk` at a time: the solves vmapped, the skinning one dense matrix product
+    for the chunk. With several devices the frames are split between them
+    (`jax.shard_map`, the rig replicated) and the result comes back in frame order.
+
+    Args:
+        rig: the rig.
+        targets: `(frames, h, 2)` handle targets, one row of targets per frame.
+        solver: the solver of every frame (default: the paper's `FixedG()`).
+        chunk: frames vmapped together on a device (memory grows with it).
+        devices: the devices to shard the frames over (default: one, the default device;
+            `jax.devices()` for all). Frames are padded to a multiple of their count.
+
+    Returns:
+        `(frames, n, 2)` deformed shape-mesh vertices.
+    """
+    targets = jnp.asarray(targets)
+    h = rig.energy.handles.shape[0]
+    if targets.ndim != 3 or targets.shape[1:] != (h, 2):
+        raise ValueError(
+            f"targets must have shape (frames, {h}, 2), one (x, y) per handle and frame, got "
+            f"{targets.shape}; for a single frame use rig.deform(targets)."
+        )
+    if chunk < 1:
+        raise ValueError(f"chunk must be a positive number of frames, got {chunk}.")
+    targets = targets.astype(rig.energy.rest.dtype)
+    frames = targets.shape[0]
+    devices = [jax.devices()[0]] if devices is None else list(devices)
+    if len(devices) == 1:
+        return _deform_one_device(rig, targets, solver, min(chunk, frames))
+    per_device = -(-frames // len(devices))
+    padded = per_device * len(devices)
+    if padded > frames:  # repeat the last frame; its copies are dropped below
+        targets = jnp.concatenate([targets, jnp.repeat(targets[-1:], padded - frames, 0)])
+    mesh = Mesh(np.asarray(devices), ("frames",))
+    targets = jax.device_put(targets, NamedSharding(mesh, PartitionSpec("frames")))
+    rig = jax.device_put(rig, NamedSharding(mesh, PartitionSpec()))
+    return _deform_sharded(rig, targets, solver, min(chunk, per_device), mesh)[:frames]

@@ -1,0 +1,57 @@
+"""Many frames at once: vmapped in chunks, and sharded over devices."""
+
+import os
+import subprocess
+import sys
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import mvcjax
+
+
+def some_frames(rig, count, seed=0):
+    rng = np.random.default_rng(seed)
+    offsets = rng.normal(scale=8.0, size=(count, *rig.handle_positions.shape))
+    return rig.handle_positions[None] + jnp.asarray(offsets, rig.handle_positions.dtype)
+
+
+def test_frames_match_single_frames(horse_rig):
+    targets = some_frames(horse_rig, 10)
+    together = mvcjax.deform_frames(horse_rig, targets, chunk=4)  # chunks that do not divide
+    assert together.shape == (10, *horse_rig.shape_mesh.vertices.shape)
+    for k in range(10):
+        np.testing.assert_allclose(together[k], horse_rig.deform(targets[k]), atol=1e-9)
+
+
+def test_bad_frames_are_explained(horse_rig):
+    with pytest.raises(ValueError, match="targets must have shape \\(frames, 5, 2\\)"):
+        mvcjax.deform_frames(horse_rig, horse_rig.handle_positions)
+    with pytest.raises(ValueError, match="chunk must be"):
+        mvcjax.deform_frames(horse_rig, some_frames(horse_rig, 2), chunk=0)
+
+
+SHARDED = """
+import jax
+jax.config.update("jax_enable_x64", True)
+import jax.numpy as jnp, numpy as np, mvcjax
+from mvcjax import datasets
+assert len(jax.devices()) == 4, jax.devices()
+rig = mvcjax.Rig.build(datasets.horse(), datasets.horse_handles())
+rng = np.random.default_rng(0)
+targets = rig.handle_positions[None] + rng.normal(scale=8.0, size=(10, 5, 2))
+one = mvcjax.deform_frames(rig, targets, chunk=3)
+four = mvcjax.deform_frames(rig, targets, chunk=3, devices=jax.devices())
+print(four.shape, float(jnp.abs(one - four).max()))
+"""
+
+
+def test_frames_sharded_over_four_devices_give_the_same_result():
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4",
+           "JAX_PLATFORMS": "cpu"}
+    out = subprocess.run([sys.executable, "-c", SHARDED], env=env, capture_output=True,
+                         text=True, check=True)
+    shape, gap = out.stdout.split(")")
+    assert shape.strip("(") == "10, 3117, 2"
+    assert float(gap) < 1e-9
