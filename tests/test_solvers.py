@@ -184,3 +184,50 @@ def test_jaxopt_does_not_warn_users():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout
+
+
+@pytest.fixture(scope="module")
+def stick_gradients():
+    """A loss of the deformed stick, its targets, and its gradients with respect to the
+    targets and to the log of the length weight, by central finite differences and by
+    the unrolled fixed-G iteration solved to convergence."""
+    model = mvcjax.datasets.model("stick")
+    rig = model.rig(dtype=jnp.float64)
+    targets = rig.handle_positions + 0.5 * jnp.asarray(model.drag)
+
+    def loss(solver, t, log_length):
+        r = rig.with_weights(mvcjax.Weights(length=jnp.exp(log_length)))
+        return jnp.sum(r.deform(t, solver)[::5] ** 2) / 1e4
+
+    direction = jax.random.normal(jax.random.key(0), targets.shape, targets.dtype)
+    reference = mvcjax.FixedG(iterations=3000)
+    h = 1e-4
+    fd = (
+        (loss(reference, targets + h * direction, 0.0)
+         - loss(reference, targets - h * direction, 0.0)) / (2 * h),
+        (loss(reference, targets, h) - loss(reference, targets, -h)) / (2 * h),
+    )
+    unrolled = jax.grad(loss, argnums=(1, 2))(reference, targets, 0.0)
+    return loss, targets, direction, fd, (float(jnp.sum(unrolled[0] * direction)),
+                                          float(unrolled[1]))
+
+
+def test_unrolled_fixed_g_gradient_matches_finite_differences(stick_gradients):
+    _, _, _, fd, unrolled = stick_gradients
+    assert unrolled[0] == pytest.approx(float(fd[0]), rel=1e-6)
+    assert unrolled[1] == pytest.approx(float(fd[1]), rel=1e-6)
+
+
+@pytest.mark.parametrize("solver", [
+    mvcjax.GaussNewton(), mvcjax.LevenbergMarquardt(), mvcjax.Dogleg(),
+    mvcjax.JaxoptLevenbergMarquardt(),
+], ids=lambda s: type(s).__name__)
+def test_implicit_gradients_agree_with_the_unrolled_one(stick_gradients, solver):
+    # Through targets and through a term weight: implicit differentiation (optimistix's
+    # ImplicitAdjoint, jaxopt's implicit diff with an exact LU solve) at convergence.
+    loss, targets, direction, _, unrolled = stick_gradients
+    # They agree as far as each solver's stopping tolerance lets its minimum (observed:
+    # 1e-8 relative, 1.5e-5 for optimistix's Levenberg-Marquardt).
+    grads = jax.grad(loss, argnums=(1, 2))(solver, targets, 0.0)
+    assert float(jnp.sum(grads[0] * direction)) == pytest.approx(unrolled[0], rel=1e-4)
+    assert float(grads[1]) == pytest.approx(unrolled[1], rel=1e-4)

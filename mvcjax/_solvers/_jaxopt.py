@@ -45,9 +45,11 @@ class _JaxoptLeastSquares(AbstractSolver):
         problem = ScaledProblem(energy, targets)
         shape = init.shape
         # Flat parameters: jaxopt's Levenberg-Marquardt materialises the Jacobian as a matrix.
-        # Gradients are implicit: jaxopt differentiates the optimality condition.
-        solver = self._solver(lambda x: problem.residuals(x.reshape(shape)), tol)
-        x, state = solver.run(problem.scaled(init).reshape(-1))
+        # Gradients are implicit: jaxopt differentiates the optimality condition with
+        # respect to the arguments of `run`, so the problem (targets, weights) is passed
+        # there; closed over, it would leak tracers out of jaxopt's custom VJP.
+        solver = self._solver(lambda x, p: p.residuals(x.reshape(shape)), tol)
+        x, state = solver.run(problem.scaled(init).reshape(-1), problem)
         return problem.result(x.reshape(shape), state.error <= tol, state.iter_num)
 
 
@@ -55,7 +57,9 @@ class JaxoptGaussNewton(_JaxoptLeastSquares):
     """Gauss-Newton by `jaxopt.GaussNewton` (full steps, no line search)."""
 
     def _solver(self, residual_fun, tol):
-        return _jaxopt().GaussNewton(residual_fun=residual_fun, maxiter=self.max_steps, tol=tol)
+        jaxopt = _jaxopt()
+        return jaxopt.GaussNewton(residual_fun=residual_fun, maxiter=self.max_steps, tol=tol,
+                                  implicit_diff_solve=jaxopt.linear_solve.solve_lu)
 
 
 class JaxoptLevenbergMarquardt(_JaxoptLeastSquares):
@@ -63,7 +67,9 @@ class JaxoptLevenbergMarquardt(_JaxoptLeastSquares):
     of the materialised Jacobian."""
 
     def _solver(self, residual_fun, tol):
-        return _jaxopt().LevenbergMarquardt(
+        jaxopt = _jaxopt()
+        return jaxopt.LevenbergMarquardt(
             residual_fun=residual_fun, maxiter=self.max_steps, tol=tol, xtol=0.0, gtol=0.0,
             solver="cholesky", materialize_jac=True,
+            implicit_diff_solve=jaxopt.linear_solve.solve_lu,
         )
