@@ -243,6 +243,8 @@ class Rig(eqx.Module):
         shape_vertices, shape_faces, shape_handles = meshing.triangulate_shape(
             shape, shape_spacing, handles
         )
+        if skinning not in SKINNINGS:
+            raise ValueError(f"skinning must be one of {SKINNINGS}, got {skinning!r}.")
         if isinstance(control, str) and control == "shape":
             return cls._full(shape_vertices, shape_faces, shape_handles, weights, factor, dtype,
                              shape.diagonal)
@@ -424,8 +426,6 @@ def _skinning_weights(shape_vertices, control_vertices, control_faces, method):
     - "barycentric": the containing triangle's barycentric coordinates (the paper's
       "control mesh only"): continuous, piecewise linear, with kinks along control edges.
     """
-    if method not in SKINNINGS:
-        raise ValueError(f"skinning must be one of {SKINNINGS}, got {method!r}.")
     face, depth = coords.locate_points(shape_vertices, control_vertices, control_faces)
     outside = np.flatnonzero(depth < -1e-9)
     if len(outside):

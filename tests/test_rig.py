@@ -264,3 +264,5 @@ def test_blended_skinning_is_smoothest_and_the_default(horse, skinned_rigs):
 def test_unknown_skinning_is_explained(horse):
     with pytest.raises(ValueError, match="skinning must be one of"):
         mvcjax.Rig.build(horse, datasets.horse_handles(), skinning="linear")
+    with pytest.raises(ValueError, match="skinning must be one of"):
+        mvcjax.Rig.build(horse, datasets.horse_handles(), skinning="linear", control="shape")
