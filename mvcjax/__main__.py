@@ -59,9 +59,9 @@ def _demo(args) -> int:
     print(f"control    : {cm.vertices.shape[0]} vertices ({cm.outer.shape[0]} on the polygon, "
           f"{cm.inner.shape[0]} inner), {cm.faces.shape[0]} triangles, {cm.handles.shape[0]} handles")
     print(f"dtype      : {rig.energy.rest.dtype}, device {jax.devices()[0].platform}")
-    print(f"preprocess : {build * 1e3:.0f} ms (meshing, MVC weights, G)")
+    print(f"preprocess : {build * 1e3:.0f} ms (meshing, skinning weights, G)")
     print(f"compile    : {compile_time * 1e3:.0f} ms (solve + skin, once)")
-    print(f"per frame  : {frame * 1e3:.3f} ms (FixedG, 15 iterations, + MVC skinning; "
+    print(f"per frame  : {frame * 1e3:.3f} ms (FixedG, 15 iterations, + blended MVC skinning; "
           f"median of {len(times)})")
     print(f"figure     : {args.out}")
     return 0
