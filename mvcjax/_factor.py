@@ -70,11 +70,16 @@ def operators(energy: Energy) -> tuple[Float[Array, "rows n"], ...]:
     )
 
 
+@jax.jit
+def _operator_arrays(energy: Energy):
+    # One compiled call (cached by shapes) instead of dozens of eager small ones.
+    return [t[:3] for t in operator_triplets(energy)]
+
+
 def sparse_operators(energy: Energy) -> tuple[scipy.sparse.csr_matrix, ...]:
     """The constant matrices `L, M, H, C` of eq. 7 as scipy CSR matrices (float64)."""
     n = energy.num_vertices
-    # One compiled call instead of dozens of eagerly dispatched small ones.
-    triplets = jax.jit(lambda e: [t[:3] for t in operator_triplets(e)])(energy)
+    triplets = _operator_arrays(energy)
     counts = [a.shape[0] for a in (energy.laplacian_index, energy.mvc_centre, energy.edges,
                                     energy.handles)]
     return tuple(

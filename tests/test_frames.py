@@ -43,7 +43,8 @@ rng = np.random.default_rng(0)
 targets = rig.handle_positions[None] + rng.normal(scale=8.0, size=(10, 5, 2))
 one = mvcjax.deform_frames(rig, targets, chunk=3)
 four = mvcjax.deform_frames(rig, targets, chunk=3, devices=jax.devices())
-print(four.shape, float(jnp.abs(one - four).max()))
+assert four.shape == (10, *rig.shape_mesh.vertices.shape), four.shape
+print(float(jnp.abs(one - four).max()))
 """
 
 
@@ -52,6 +53,4 @@ def test_frames_sharded_over_four_devices_give_the_same_result():
            "JAX_PLATFORMS": "cpu"}
     out = subprocess.run([sys.executable, "-c", SHARDED], env=env, capture_output=True,
                          text=True, check=True)
-    shape, gap = out.stdout.split(")")
-    assert shape.strip("(") == "10, 3117, 2"
-    assert float(gap) < 1e-9
+    assert float(out.stdout) < 1e-9
