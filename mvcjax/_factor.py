@@ -144,6 +144,11 @@ class AbstractFactor(eqx.Module):
         """One fixed-G iteration `G b(V)`, given `handle_part(targets)`."""
 
     @abc.abstractmethod
+    def solve_normal(self, rhs: Float[Array, "n 2"]) -> Float[Array, "n 2"]:
+        """`N^{-1} rhs` for the constant normal matrix `N = A^T W A` (the Gauss-Newton
+        matrix of the energy without its rotations: the least-squares solvers' preconditioner)."""
+
+    @abc.abstractmethod
     def rebuild(self, energy: Energy) -> AbstractFactor:
         """The same kind of factor for the energy's (new) weights."""
 
@@ -156,11 +161,13 @@ class DenseFactor(AbstractFactor):
     Attributes:
         shape: `(n, m)` the columns of `G` acting on `delta` and `e`.
         handle: `(n, h)` the columns acting on the handle targets.
+        normal_inverse: `(n, n)` `N^{-1}`, where `G = N^{-1} A^T W`.
         rows, coef, length: the local step's rows (see `AbstractFactor`).
     """
 
     shape: Float[Array, "n m"]
     handle: Float[Array, "n h"]
+    normal_inverse: Float[Array, "n n"]
     rows: Int[Array, "m 3"]
     coef: Float[Array, "m 3"]
     length: Float[Array, " m"]
@@ -170,6 +177,9 @@ class DenseFactor(AbstractFactor):
 
     def step(self, vertices, handle_part):
         return self.shape @ _as_points(self.local_targets(vertices)) + handle_part
+
+    def solve_normal(self, rhs):
+        return self.normal_inverse @ rhs
 
     def rebuild(self, energy):
         return dense_factor(energy)
@@ -185,11 +195,14 @@ def dense_factor(energy: Energy) -> DenseFactor:
         + w.handle * handle.T @ handle
     )
     rhs = jnp.concatenate([w.laplacian * lap.T, w.length * length.T, w.handle * handle.T], axis=1)
-    g = jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(normal), rhs)
+    cho = jax.scipy.linalg.cho_factor(normal)
+    g = jax.scipy.linalg.cho_solve(cho, rhs)
     split = lap.shape[0] + length.shape[0]
     rows, coef, rest_length = _local_rows(energy)
     return DenseFactor(
-        shape=g[:, :split], handle=g[:, split:], rows=rows, coef=coef, length=rest_length
+        shape=g[:, :split], handle=g[:, split:],
+        normal_inverse=jax.scipy.linalg.cho_solve(cho, jnp.eye(normal.shape[0], dtype=normal.dtype)),
+        rows=rows, coef=coef, length=rest_length,
     )
 
 
@@ -266,6 +279,9 @@ class SparseFactor(AbstractFactor):
             (self.coef * t[:, None]).reshape(-1)
         )
         return self._solve(_as_points(z) + handle_part)
+
+    def solve_normal(self, rhs):
+        return self._solve(rhs)
 
     def rebuild(self, energy):
         return sparse_factor(energy)

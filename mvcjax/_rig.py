@@ -383,6 +383,33 @@ class Rig(eqx.Module):
         vertices, info = solver.solve(self.energy, self.factor, targets, self.start(targets, init))
         return (vertices, info) if return_info else vertices
 
+    def energy_history(
+        self,
+        targets: Float[Array, "h 2"],
+        solver: AbstractSolver,
+        steps: int,
+        *,
+        init="rigid",
+    ) -> Float[Array, " steps+1"]:
+        """The energy (6) at the start and after each of `steps` steps of `solver`.
+
+        The solver's stopping criteria are ignored, so that solvers compare over the same
+        number of steps (`steps` is static: jit with `static_argnums`). Timing is not
+        recorded here: the energy at every step costs extra; time a `solve` instead.
+
+        Args:
+            targets: `(h, 2)` where each handle should go.
+            solver: any of mvcjax's solvers.
+            steps: how many steps to record.
+            init: the start, see `Rig.start`.
+        """
+        if not isinstance(solver, AbstractSolver):
+            raise TypeError(f"solver must be an mvcjax solver such as mvcjax.FixedG(), got {solver!r}.")
+        if steps < 1:
+            raise ValueError(f"steps must be at least 1, got {steps}.")
+        targets = self._check_targets(targets)
+        return solver.history(self.energy, self.factor, targets, self.start(targets, init), steps)
+
     def skin(self, control_vertices: Float[Array, "c 2"]) -> Float[Array, "n 2"]:
         """Shape-mesh vertices carried by the control vertices (`V_S = W V_C`)."""
         return self.skinning(control_vertices)

@@ -50,3 +50,19 @@ class AbstractSolver(eqx.Module):
             targets: `(h, 2)` handle targets.
             init: `(n, 2)` starting control vertices.
         """
+
+    def history(
+        self,
+        energy: Energy,
+        factor: AbstractFactor,
+        targets: Float[Array, "h 2"],
+        init: Float[Array, "n 2"],
+        steps: int,
+    ) -> Float[Array, " steps+1"]:
+        """The energy at the start and after each of `steps` steps, stopping criteria
+        ignored (for comparing solvers; `Rig.energy_history` is the public entry).
+
+        A step is one iteration of the solver's own loop: one fixed-G step, or one
+        optimistix or jaxopt step (which may be a rejected trial).
+        """
+        raise NotImplementedError(f"{type(self).__name__} does not record its history.")

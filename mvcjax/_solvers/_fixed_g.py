@@ -88,38 +88,40 @@ class FixedG(AbstractSolver):
         if self.anderson < 0:
             raise ValueError(f"FixedG(anderson={self.anderson}): the memory must be >= 0.")
 
-    def solve(self, energy, factor, targets, init):
+    def _advance(self, energy, factor, targets, init):
+        """One step `(v, memory) -> (v, largest move, memory)` and the initial memory."""
         handle_part = factor.handle_part(targets)
-        tol = self.rtol * energy.scale
         shape = init.shape
 
         def plain(v):
             return factor.step(v, handle_part)
 
-        if self.anderson:
-
-            def advance(v, memory):
-                g = plain(v)
-                f = (g - v).reshape(-1)
-                mixed, memory = _anderson_extrapolate(memory, g.reshape(-1), f, self.regularisation)
-                mixed = mixed.reshape(shape)
-                better = total_energy(energy, mixed, targets) <= total_energy(energy, g, targets)
-                memory = jax.tree.map(
-                    lambda new, fresh: jnp.where(better, new, fresh),
-                    memory,
-                    _anderson_init(self.anderson, f.size, v.dtype),
-                )
-                return jnp.where(better, mixed, g), jnp.max(jnp.abs(f)), memory
-
-            memory0 = _anderson_init(self.anderson, init.size, init.dtype)
-        else:
+        if not self.anderson:
 
             def advance(v, memory):
                 g = plain(v)
                 return g, jnp.max(jnp.abs(g - v)), memory
 
-            memory0 = None
+            return advance, None
 
+        def advance(v, memory):
+            g = plain(v)
+            f = (g - v).reshape(-1)
+            mixed, memory = _anderson_extrapolate(memory, g.reshape(-1), f, self.regularisation)
+            mixed = mixed.reshape(shape)
+            better = total_energy(energy, mixed, targets) <= total_energy(energy, g, targets)
+            memory = jax.tree.map(
+                lambda new, fresh: jnp.where(better, new, fresh),
+                memory,
+                _anderson_init(self.anderson, f.size, v.dtype),
+            )
+            return jnp.where(better, mixed, g), jnp.max(jnp.abs(f)), memory
+
+        return advance, _anderson_init(self.anderson, init.size, init.dtype)
+
+    def solve(self, energy, factor, targets, init):
+        advance, memory0 = self._advance(energy, factor, targets, init)
+        tol = self.rtol * energy.scale
         inf = jnp.asarray(jnp.inf, init.dtype)
         carry0 = (jnp.zeros((), jnp.int32), init, inf, memory0)
 
@@ -144,3 +146,14 @@ class FixedG(AbstractSolver):
             energy=total_energy(energy, vertices, targets),
         )
         return vertices, info
+
+    def history(self, energy, factor, targets, init, steps):
+        advance, memory0 = self._advance(energy, factor, targets, init)
+
+        def body(carry, _):
+            v, memory = carry
+            v, _, memory = advance(v, memory)
+            return (v, memory), total_energy(energy, v, targets)
+
+        _, energies = jax.lax.scan(body, (init, memory0), length=steps)
+        return jnp.concatenate([total_energy(energy, init, targets)[None], energies])

@@ -9,6 +9,8 @@ from __future__ import annotations
 import warnings
 
 import equinox as eqx
+import jax
+import jax.numpy as jnp
 
 from ._base import AbstractSolver
 from ._least_squares import ScaledProblem, check_jacobian_fits
@@ -39,18 +41,33 @@ class _JaxoptLeastSquares(AbstractSolver):
     def _solver(self, residual_fun, tol: float):
         raise NotImplementedError
 
-    def solve(self, energy, factor, targets, init):
+    def _configured(self, energy, init):
         check_jacobian_fits(energy, init.dtype, type(self).__name__)
         tol = (1e-8 if init.dtype.itemsize >= 8 else 1e-4) if self.tol is None else self.tol
-        problem = ScaledProblem(energy, targets)
         shape = init.shape
         # Flat parameters: jaxopt's Levenberg-Marquardt materialises the Jacobian as a matrix.
+        return self._solver(lambda x, p: p.residuals(x.reshape(shape)), tol), tol
+
+    def solve(self, energy, factor, targets, init):
+        solver, tol = self._configured(energy, init)
+        problem = ScaledProblem(energy, targets)
         # Gradients are implicit: jaxopt differentiates the optimality condition with
         # respect to the arguments of `run`, so the problem (targets, weights) is passed
         # there; closed over, it would leak tracers out of jaxopt's custom VJP.
-        solver = self._solver(lambda x, p: p.residuals(x.reshape(shape)), tol)
         x, state = solver.run(problem.scaled(init).reshape(-1), problem)
-        return problem.result(x.reshape(shape), state.error <= tol, state.iter_num)
+        return problem.result(x.reshape(init.shape), state.error <= tol, state.iter_num)
+
+    def history(self, energy, factor, targets, init, steps):
+        solver, _ = self._configured(energy, init)
+        problem = ScaledProblem(energy, targets)
+        x0 = problem.scaled(init).reshape(-1)
+
+        def body(carry, _):
+            x, state = solver.update(*carry, problem)
+            return (x, state), problem.energy_at(x.reshape(init.shape))
+
+        _, energies = jax.lax.scan(body, (x0, solver.init_state(x0, problem)), length=steps)
+        return jnp.concatenate([problem.energy_at(x0.reshape(init.shape))[None], energies])
 
 
 class JaxoptGaussNewton(_JaxoptLeastSquares):

@@ -49,10 +49,13 @@ class ScaledProblem(eqx.Module):
     def residuals(self, y: Float[Array, "n 2"]) -> Float[Array, " m"]:
         return residuals(self.energy, self.unscaled(y), self.targets) / self.energy.scale
 
+    def energy_at(self, y: Float[Array, "n 2"]) -> Float[Array, ""]:
+        return total_energy(self.energy, self.unscaled(y), self.targets)
+
     def result(self, y, converged, iterations) -> tuple[Float[Array, "n 2"], SolveInfo]:
         vertices = self.unscaled(y)
         return vertices, SolveInfo(
             converged=jnp.asarray(converged),
             iterations=jnp.asarray(iterations, jnp.int32),
-            energy=total_energy(self.energy, vertices, self.targets),
+            energy=self.energy_at(y),
         )
