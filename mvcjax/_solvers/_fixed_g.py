@@ -10,6 +10,10 @@ from jaxtyping import Array
 
 from .._energy import total_energy
 from ._base import AbstractSolver, SolveInfo
+from ._least_squares import default_tol
+from ._normal_cg import conjugate_gradient
+
+ADJOINTS = ("unrolled", "implicit")
 
 
 class _Anderson(eqx.Module):
@@ -64,8 +68,16 @@ class FixedG(AbstractSolver):
         rtol: convergence tolerance on the largest vertex move `|G b(V) - V|`, relative
             to the rest bounding-box diagonal. `converged` reports whether it was met.
         stop_early: stop as soon as the tolerance is met. This runs a `while_loop`,
-            which `jax.grad` cannot reverse; a fixed-length loop is differentiated by
-            unrolling.
+            which `jax.grad` cannot reverse: use it with `adjoint="implicit"` (or
+            forward mode only).
+        adjoint: how gradients flow through the solve. `"unrolled"` (default)
+            differentiates every iteration of the fixed-length loop: exact for what
+            was computed, even after 15 iterations, at the memory cost of all of them
+            in reverse mode. `"implicit"` applies the implicit function theorem at the
+            returned vertices, taken to be a stationary point of the energy: one
+            linear solve with the energy's Hessian (conjugate gradients preconditioned
+            by the rig's factor), whatever the number of iterations. Right for solves
+            run to convergence; wrong for the paper's 15 iterations, which stop short.
         anderson: if positive, Anderson acceleration over the last `anderson` steps,
             with three safeguards: a ridge on the small least-squares system, an energy
             check (an extrapolation that does not lower the energy below the plain
@@ -81,8 +93,11 @@ class FixedG(AbstractSolver):
     anderson: int = eqx.field(default=0, static=True)
     regularisation: float = eqx.field(default=1e-10, static=True)
     unroll: int = eqx.field(default=32, static=True)
+    adjoint: str = eqx.field(default="unrolled", static=True)
 
     def __check_init__(self):
+        if self.adjoint not in ADJOINTS:
+            raise ValueError(f"FixedG(adjoint={self.adjoint!r}): choose one of {ADJOINTS}.")
         if self.iterations < 1:
             raise ValueError(f"FixedG(iterations={self.iterations}): needs at least 1 iteration.")
         if self.anderson < 0:
@@ -120,6 +135,39 @@ class FixedG(AbstractSolver):
         return advance, _anderson_init(self.anderson, init.size, init.dtype)
 
     def solve(self, energy, factor, targets, init):
+        if self.adjoint == "unrolled":
+            return self._iterate(energy, factor, targets, init)
+
+        def half_gradient(v):
+            # Zero exactly where the iteration stops moving: a fixed point of
+            # V <- G b(V) is a stationary point of the energy (at any V, the step is
+            # V - N^{-1} grad E(V) / 2).
+            return 0.5 * jax.grad(total_energy, argnums=1)(energy, v, targets)
+
+        def run(_, start):
+            vertices, info = self._iterate(energy, factor, jax.lax.stop_gradient(targets), start)
+            # custom_root gives the auxiliary outputs integer tangents, which JAX then
+            # rejects: carry the counts as floats.
+            return vertices, jnp.stack([info.iterations, info.converged]).astype(start.dtype)
+
+        def tangent_solve(hessian, rhs):
+            def cg(matvec, b):
+                return conjugate_gradient(matvec, b, factor.solve_normal,
+                                          default_tol(b.dtype), 4 * b.size)[0]
+
+            # A linear solve that JAX can transpose, so that reverse mode works too.
+            return jax.lax.custom_linear_solve(hessian, rhs, cg, symmetric=True)
+
+        vertices, (iterations, converged) = jax.lax.custom_root(
+            half_gradient, init, run, tangent_solve, has_aux=True
+        )
+        return vertices, SolveInfo(
+            converged=converged > 0,
+            iterations=iterations.astype(jnp.int32),
+            energy=total_energy(energy, vertices, targets),
+        )
+
+    def _iterate(self, energy, factor, targets, init):
         advance, memory0 = self._advance(energy, factor, targets, init)
         tol = self.rtol * energy.scale
         inf = jnp.asarray(jnp.inf, init.dtype)

@@ -2,6 +2,10 @@
 
 jaxopt is no longer maintained and warns so on import; mvcjax imports it lazily, with that
 one warning silenced, and pins the version it was tested with (0.8.5).
+
+Differentiate through them as `jax.jit(jax.grad(f))`, not `jax.grad(jax.jit(f))`: the
+latter makes jaxopt 0.8.5's implicit differentiation leak a tracer ("No constant handler
+for type DynamicJaxprTracer"), an upstream bug that the other solvers do not have.
 """
 
 from __future__ import annotations

@@ -28,6 +28,45 @@ def _dot(a, b):
     return sum(jnp.vdot(x, y) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)))
 
 
+def conjugate_gradient(matvec, b, precondition, rtol: float, max_steps: int):
+    """Preconditioned conjugate gradients for `matvec(x) = b` from `x = 0`.
+
+    `matvec` must be symmetric positive semidefinite and `precondition` symmetric
+    positive definite (pytrees of arrays in, the same out). Stops after `max_steps` or
+    when the preconditioned residual norm has fallen by `rtol`; a direction of zero or
+    negative curvature ends the iteration instead of dividing by it.
+
+    Returns:
+        `(x, steps)`.
+    """
+    z = precondition(b)
+    gamma0 = _dot(b, z)
+    stop = (rtol**2) * gamma0
+
+    def cond(carry):
+        k, _, _, _, gamma = carry
+        return (k < max_steps) & (gamma > stop)
+
+    def body(carry):
+        k, x, residual, direction, gamma = carry
+        q = matvec(direction)
+        curvature = _dot(direction, q)
+        ok = curvature > 0
+        alpha = jnp.where(ok, gamma / jnp.where(ok, curvature, 1), 0)
+        x = jax.tree.map(lambda xi, di: xi + alpha * di, x, direction)
+        residual = jax.tree.map(lambda ri, qi: ri - alpha * qi, residual, q)
+        z = precondition(residual)
+        gamma_next = _dot(residual, z)
+        beta = gamma_next / jnp.where(gamma > 0, gamma, 1)
+        direction = jax.tree.map(lambda zi, di: zi + beta * di, z, direction)
+        return k + 1, x, residual, direction, jnp.where(ok, gamma_next, 0)
+
+    zero = jax.tree.map(jnp.zeros_like, b)
+    carry = (jnp.zeros((), jnp.int32), zero, b, z, gamma0)
+    steps, x, *_ = jax.lax.while_loop(cond, body, carry)
+    return x, steps
+
+
 class NormalCG(lx.AbstractLinearSolver):
     """Least squares `min |J x - r|` by preconditioned conjugate gradients on
     `J^T J x = J^T r`, with `N^{-1}` from the rig's factor as the preconditioner.
@@ -55,36 +94,10 @@ class NormalCG(lx.AbstractLinearSolver):
         del options
         operator = state
         transposed = operator.transpose()
-        precondition = self.factor.solve_normal
-
-        def normal(x):
-            return transposed.mv(operator.mv(x))
-
-        gradient = transposed.mv(vector)
-        z = precondition(gradient)
-        gamma0 = _dot(gradient, z)
-        stop = (self.rtol**2) * gamma0
-
-        def cond(carry):
-            k, _, _, _, gamma = carry
-            return (k < self.max_steps) & (gamma > stop)
-
-        def body(carry):
-            k, x, residual, direction, gamma = carry
-            q = normal(direction)
-            curvature = _dot(direction, q)
-            # A zero curvature only occurs with a zero direction (J^T J is positive
-            # semidefinite); guard the division instead of producing 0/0.
-            alpha = jnp.where(curvature > 0, gamma / jnp.where(curvature > 0, curvature, 1), 0)
-            x = x + alpha * direction
-            residual = residual - alpha * q
-            z = precondition(residual)
-            gamma_next = _dot(residual, z)
-            beta = jnp.where(gamma > 0, gamma_next / jnp.where(gamma > 0, gamma, 1), 0)
-            return k + 1, x, residual, z + beta * direction, jnp.where(curvature > 0, gamma_next, 0)
-
-        carry = (jnp.zeros((), jnp.int32), jnp.zeros_like(gradient), gradient, z, gamma0)
-        steps, x, *_ = jax.lax.while_loop(cond, body, carry)
+        x, steps = conjugate_gradient(
+            lambda x: transposed.mv(operator.mv(x)), transposed.mv(vector),
+            self.factor.solve_normal, self.rtol, self.max_steps,
+        )
         return x, lx.RESULTS.successful, {"num_steps": steps}
 
     def transpose(self, state, options):

@@ -1,0 +1,211 @@
+"""Every solver on the energy (6): energy against iteration and against time, iterations
+and time to a relative energy gap of 1e-6 to the lowest minimum found, compile time.
+
+For each model (the horse, and the paper-like character, flower and stick) and its
+default drag, in float64 (a relative gap of 1e-6 is below what float32 resolves):
+
+- the energy after every step of every solver (`Rig.energy_history`, stopping criteria
+  off), and the lowest energy any of them reached: the reference minimum;
+- steps to a relative gap of 1e-6 to it (none if a solver settles in another stationary
+  point or runs out of steps);
+- the time of one step: a solve of exactly that many steps (tolerances off), compiled
+  once outside the timed region, median of many calls, divided by the steps; every
+  solver's solve timed in turns, so that ratios come from one run; the time to the gap
+  is that solve's time (never extrapolated);
+- compile time: the first call of that solve.
+
+The targets: one step of the optimistix solvers costs at most 10 plain fixed-G steps;
+the best of them reaches the gap in less time than plain fixed-G; Anderson-accelerated
+fixed-G needs at most a tenth of plain fixed-G's steps. The script prints them.
+
+    python benchmarks/solvers.py                        # all four models
+    python benchmarks/solvers.py --quick --json FILE    # the horse, fewer repeats
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+from _timing import compile_ms, interleaved_median_ms, write_results
+
+GAP = 1e-6
+
+
+def solvers():
+    """name -> (solver, steps to record)."""
+    import mvcjax
+
+    return {
+        "fixed_g": (mvcjax.FixedG(), 6000),
+        "anderson": (mvcjax.FixedG(anderson=5), 800),
+        "gauss_newton": (mvcjax.GaussNewton(), 400),
+        "dogleg": (mvcjax.Dogleg(), 400),
+        "levenberg_marquardt": (mvcjax.LevenbergMarquardt(), 400),
+        "gauss_newton_cholesky": (mvcjax.GaussNewton(linear_solver="cholesky"), 200),
+        "jaxopt_gauss_newton": (mvcjax.JaxoptGaussNewton(), 200),
+        "jaxopt_levenberg_marquardt": (mvcjax.JaxoptLevenbergMarquardt(), 200),
+    }
+
+
+def exactly(solver, steps: int):
+    """The same solver running exactly `steps` steps (tolerances off)."""
+    import mvcjax
+
+    if isinstance(solver, mvcjax.FixedG):
+        return dataclasses.replace(solver, iterations=steps, stop_early=False, unroll=0)
+    if isinstance(solver, (mvcjax.JaxoptGaussNewton, mvcjax.JaxoptLevenbergMarquardt)):
+        return dataclasses.replace(solver, max_steps=steps, tol=0.0)
+    return dataclasses.replace(solver, max_steps=steps, rtol=0.0, atol=0.0)
+
+
+def steps_to_gap(energies, minimum):
+    import numpy as np
+
+    reached = np.flatnonzero((energies - minimum) / minimum <= GAP)
+    return int(reached[0]) if reached.size else None
+
+
+def run_model(name: str, repeats: int) -> dict:
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from mvcjax import datasets
+
+    model = datasets.model(name)
+    rig = model.rig(dtype=jnp.float64)
+    targets = rig.handle_positions + jnp.asarray(model.drag)
+    histories, compile_times = {}, {}
+    for solver_name, (solver, steps) in solvers().items():
+        history = jax.jit(lambda t, s=solver, n=steps: rig.energy_history(t, s, n))
+        histories[solver_name] = np.asarray(history(targets))
+        print(f"  {name} {solver_name}: {steps} steps recorded", file=sys.stderr)
+    minimum = min(float(h.min()) for h in histories.values())
+
+    timed, counts = {}, {}
+    for solver_name, (solver, steps) in solvers().items():
+        reached = steps_to_gap(histories[solver_name], minimum)
+        # Time the solve up to the gap, or over all recorded steps if it never got there.
+        counts[solver_name] = max(reached or steps, 1)
+        solve = jax.jit(lambda t, s=exactly(solver, counts[solver_name]): rig.solve(t, s))
+        compile_times[solver_name] = compile_ms(solve, targets)
+        timed[solver_name] = (solve, [(targets,)])
+    times = interleaved_median_ms(timed, repeats, block=3)
+
+    fixed_step = times["fixed_g"] / counts["fixed_g"]
+    rows = []
+    for solver_name, history in histories.items():
+        reached = steps_to_gap(history, minimum)
+        step = times[solver_name] / counts[solver_name]
+        rows.append({
+            "model": name,
+            "solver": solver_name,
+            "control_vertices": int(rig.energy.num_vertices),
+            "steps_recorded": len(history) - 1,
+            "final_gap": float((history[-1] - minimum) / minimum),
+            "steps_to_gap": reached,
+            "ms_to_gap": times[solver_name] if reached is not None else None,
+            "step_ms": step,
+            "step_in_fixed_g_steps": step / fixed_step,
+            "compile_ms": compile_times[solver_name],
+            "energy": history.tolist(),
+        })
+    return {"model": name, "minimum": minimum, "rows": rows}
+
+
+def format_table(result) -> str:
+    fmt = lambda v, spec: "-" if v is None else format(v, spec)  # noqa: E731
+    lines = [f"{result['model']} (minimum {result['minimum']:.6g}, "
+             f"{result['rows'][0]['control_vertices']} control vertices)",
+             "| solver | steps to 1e-6 | time to 1e-6 (ms) | step (ms) | step / fixed-G step | "
+             "final gap | compile (ms) |",
+             "|---|---|---|---|---|---|---|"]
+    for r in result["rows"]:
+        lines.append(
+            f"| {r['solver']} | {fmt(r['steps_to_gap'], 'd')} | {fmt(r['ms_to_gap'], '.2f')} | "
+            f"{r['step_ms']:.4f} | {r['step_in_fixed_g_steps']:.1f} | {r['final_gap']:.1e} | "
+            f"{r['compile_ms']:.0f} |"
+        )
+    return "\n".join(lines)
+
+
+def targets_met(result) -> dict:
+    """The issue's three targets, measured on this model."""
+    rows = {r["solver"]: r for r in result["rows"]}
+    fixed = rows["fixed_g"]
+    optimistix = [rows[n] for n in ("gauss_newton", "dogleg", "levenberg_marquardt")]
+    best = min((r for r in optimistix if r["ms_to_gap"] is not None),
+               key=lambda r: r["ms_to_gap"], default=None)
+    anderson = rows["anderson"]["steps_to_gap"]
+    return {
+        "optimistix_step_in_fixed_g_steps": max(r["step_in_fixed_g_steps"] for r in optimistix),
+        "best_optimistix": best and best["solver"],
+        "best_optimistix_time_over_fixed_g": (
+            best["ms_to_gap"] / fixed["ms_to_gap"]
+            if best is not None and fixed["ms_to_gap"] is not None else None),
+        "anderson_steps_over_fixed_g": (
+            anderson / fixed["steps_to_gap"]
+            if anderson is not None and fixed["steps_to_gap"] is not None else None),
+    }
+
+
+def plot(result, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    fig, (by_step, by_time) = plt.subplots(1, 2, figsize=(12, 4.5))
+    floor = 1e-13  # the gap at float64 round-off, so that the log scale stays finite
+    for r in result["rows"]:
+        gap = np.maximum((np.asarray(r["energy"]) - result["minimum"]) / result["minimum"], floor)
+        steps = np.arange(len(gap))
+        by_step.plot(steps, gap, label=r["solver"])
+        by_time.plot(steps * r["step_ms"], gap, label=r["solver"])
+    for ax, xlabel in ((by_step, "step"), (by_time, "time (ms)")):
+        ax.set_xscale("symlog", linthresh=10 if xlabel == "step" else 1)
+        ax.set_yscale("log")
+        ax.axhline(GAP, color="grey", lw=0.8, ls="--")
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("relative energy gap to the lowest minimum")
+    by_step.legend(fontsize=8)
+    fig.suptitle(f"{result['model']}: solvers of the energy (6), float64")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--models", nargs="+", default=["horse", "character", "flower", "stick"])
+    parser.add_argument("--quick", action="store_true", help="the horse only, few repeats")
+    parser.add_argument("--repeats", type=int, default=30)
+    parser.add_argument("--json", default="benchmarks/results/solvers-cpu-2core.json")
+    parser.add_argument("--figures", default="benchmarks/results/figures")
+    args = parser.parse_args(argv)
+
+    import jax
+
+    # The benchmark script, not the library, chooses the precision.
+    jax.config.update("jax_enable_x64", True)
+    models = ["horse"] if args.quick else args.models
+    repeats = 5 if args.quick else args.repeats
+    results = []
+    for name in models:
+        result = run_model(name, repeats)
+        result["targets"] = targets_met(result)
+        results.append(result)
+        print(format_table(result))
+        print("targets:", result["targets"])
+        if args.figures:
+            plot(result, Path(args.figures) / f"solvers-{name}.png")
+    write_results(args.json, results, gap=GAP, dtype="float64")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
