@@ -61,6 +61,16 @@ def exactly(solver, steps: int):
     return dataclasses.replace(solver, max_steps=steps, rtol=0.0, atol=0.0)
 
 
+def sampled_steps(count: int):
+    """Up to about 350 of the steps `0..count-1`: every one of the first 50, then spaced
+    evenly on a log scale (what the plot shows), and the last."""
+    import numpy as np
+
+    steps = np.concatenate([np.arange(min(count, 50)),
+                            np.geomspace(1, count - 1, 300).astype(int), [count - 1]])
+    return np.unique(steps)
+
+
 def steps_to_gap(energies, minimum):
     import numpy as np
 
@@ -111,7 +121,9 @@ def run_model(name: str, repeats: int) -> dict:
             "step_ms": step,
             "step_in_fixed_g_steps": step / fixed_step,
             "compile_ms": compile_times[solver_name],
-            "energy": history.tolist(),
+            # The energy after the sampled steps (all of them would be megabytes).
+            "history_steps": sampled_steps(len(history)).tolist(),
+            "energy": history[sampled_steps(len(history))].tolist(),
         })
     return {"model": name, "minimum": minimum, "rows": rows}
 
@@ -163,7 +175,7 @@ def plot(result, path: Path) -> None:
     floor = 1e-13  # the gap at float64 round-off, so that the log scale stays finite
     for r in result["rows"]:
         gap = np.maximum((np.asarray(r["energy"]) - result["minimum"]) / result["minimum"], floor)
-        steps = np.arange(len(gap))
+        steps = np.asarray(r["history_steps"])
         by_step.plot(steps, gap, label=r["solver"])
         by_time.plot(steps * r["step_ms"], gap, label=r["solver"])
     for ax, xlabel in ((by_step, "step"), (by_time, "time (ms)")):
