@@ -10,14 +10,66 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Float
 
+from ._factor import DenseFactor
 from ._rig import Rig
 from ._solvers import AbstractSolver, FixedG
+
+
+def _frames_last(rig: Rig, solver: AbstractSolver) -> bool:
+    """Whether `_fixed_g_frames_last` computes what `rig.solve(t, solver)` does."""
+    return (type(solver) is FixedG and solver.anderson == 0 and not solver.stop_early
+            and solver.adjoint == "unrolled" and isinstance(rig.factor, DenseFactor))
+
+
+def _fixed_g_frames_last(rig: Rig, targets, solver: FixedG):
+    """`rig.solve(t, solver)` for a chunk of frames at once, frames on the last axis.
+
+    The same iteration as `DenseFactor.step`, written for many frames instead of vmapped:
+    every gather of the local step then moves rows of contiguous frames, and the global
+    step is one matrix product for the whole chunk. Twice as fast as the vmapped solve
+    on the CPU (23 against 46 microseconds a frame on the 6k horse, 15 iterations).
+
+    Returns:
+        `(n, 2, frames)` control vertices.
+    """
+    factor = rig.factor
+    start = jnp.moveaxis(jax.vmap(rig.start)(targets), 0, -1)
+    handle_part = jnp.einsum("nh,hdf->ndf", factor.handle, jnp.moveaxis(targets, 0, -1))
+
+    def local(coordinate):
+        # One gather per stencil column, of whole rows of frames: faster than a single
+        # gather of all three columns followed by a contraction.
+        return sum(factor.coef[:, k, None] * coordinate[factor.rows[:, k]]
+                   for k in range(factor.rows.shape[1]))
+
+    def step(_, xy):
+        x, y = local(xy[:, 0]), local(xy[:, 1])
+        sq = x * x + y * y
+        nonzero = sq > 0
+        scale = jnp.where(nonzero, factor.length[:, None] * jax.lax.rsqrt(jnp.where(nonzero, sq, 1.0)),
+                          0.0)
+        return jnp.einsum("nm,mdf->ndf", factor.shape,
+                          jnp.stack([x * scale, y * scale], axis=1)) + handle_part
+
+    return jax.lax.fori_loop(0, solver.iterations, step, start)
 
 
 def _deform_chunked(rig: Rig, targets, solver: AbstractSolver, chunk: int):
     # Skinning as one dense product per chunk: vmapped, the gather of every frame's rows
     # is ten times slower than the matrix product with all the chunk's frames at once.
     weights = rig.skinning.matrix(rig.control_mesh.vertices.shape[0])
+    frames = targets.shape[0]
+    if _frames_last(rig, solver):
+        chunk = min(chunk, frames)
+        padded = -(-frames // chunk) * chunk
+        if padded > frames:  # repeat the last frame; its copies are dropped below
+            targets = jnp.concatenate([targets, jnp.repeat(targets[-1:], padded - frames, 0)])
+
+        def one(t):
+            return jnp.einsum("nc,cdf->fnd", weights, _fixed_g_frames_last(rig, t, solver))
+
+        out = jax.lax.map(one, targets.reshape(padded // chunk, chunk, *targets.shape[1:]))
+        return out.reshape(padded, *out.shape[2:])[:frames]
     return jax.lax.map(lambda t: weights @ rig.solve(t, solver), targets, batch_size=chunk)
 
 
@@ -46,21 +98,23 @@ def deform_frames(
     targets: Float[Array, "frames h 2"],
     solver: AbstractSolver = FixedG(),
     *,
-    chunk: int = 256,
+    chunk: int = 64,
     devices=None,
 ) -> Float[Array, "frames n 2"]:
     """Deformed shape-mesh vertices for every frame of `targets`.
 
     One compiled program (cached by shapes and solver, like any `jit`) runs the frames
-    vmapped, `chunk` at a time: the solves vmapped, the skinning one dense matrix product
-    for the chunk. With several devices the frames are split between them
+    `chunk` at a time: the solves together, the skinning one dense matrix product for
+    the chunk. A plain `FixedG` on a dense factor (the default) runs as one iteration
+    over the whole chunk with the frames on the last axis, twice as fast as vmapping
+    it; any other solver is vmapped. With several devices the frames are split between them
     (`jax.shard_map`, the rig replicated) and the result comes back in frame order.
 
     Args:
         rig: the rig.
         targets: `(frames, h, 2)` handle targets, one row of targets per frame.
         solver: the solver of every frame (default: the paper's `FixedG()`).
-        chunk: frames vmapped together on a device (memory grows with it).
+        chunk: frames solved together on a device (memory grows with it).
         devices: the devices to shard the frames over (default: one, the default device;
             `jax.devices()` for all). Frames are padded to a multiple of their count.
 
