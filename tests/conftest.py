@@ -1,7 +1,15 @@
 """Shared problems. The suite runs JAX in float64 (a test's choice, never the library's);
 float32 rigs are built with dtype=jnp.float32 where a test is about float32."""
 
-import jax
+import os
+
+# The suite runs as two xdist workers on two cores (and notebooks in kernels of their
+# own): one BLAS thread each, or OpenBLAS's spinning threads oversubscribe the machine
+# (a scipy reference solve took 260 s beside a notebook instead of 12 s alone).
+for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_variable, "1")
+
+import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 

@@ -184,10 +184,12 @@ def test_full_solve_reaches_the_scipy_minimum(ring_full, ring_shape):
     assert float(info.energy) == pytest.approx(minimum_energy, rel=1e-8)
 
 
-def test_gauss_newton_refuses_a_jacobian_that_does_not_fit(horse):
+def test_a_dense_jacobian_that_does_not_fit_is_refused(horse):
     full = mvcjax.Rig.build(horse, datasets.horse_handles(), control="shape", shape_spacing=4.0)
+    with pytest.raises(ValueError, match="linear_solver='cg'"):
+        full.solve(full.handle_positions, mvcjax.GaussNewton(linear_solver="cholesky"))
     with pytest.raises(ValueError, match="use mvcjax.FixedG"):
-        full.solve(full.handle_positions, mvcjax.GaussNewton())
+        full.solve(full.handle_positions, mvcjax.JaxoptLevenbergMarquardt())
     assert bool(jnp.all(jnp.isfinite(full.deform(full.handle_positions + 5.0))))
 
 

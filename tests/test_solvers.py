@@ -170,7 +170,9 @@ def test_gradient_through_gauss_newton(horse_rig):
     def loss(t):
         return jnp.sum(horse_rig.deform(t, solver)[landmark] ** 2)
 
-    exact, approx = directional_derivatives(loss, targets, seed=4, h=1e-3)
+    # h = 1e-2: with smaller steps the difference quotient sees where each solve stopped
+    # within its tolerance (observed 5e-5 relative at h = 1e-3, 1e-5 at 1e-2).
+    exact, approx = directional_derivatives(loss, targets, seed=4, h=1e-2)
     assert exact == pytest.approx(approx, rel=1e-4)
 
 

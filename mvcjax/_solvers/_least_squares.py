@@ -19,7 +19,7 @@ def default_tol(dtype) -> float:
     return 1e-10 if jnp.finfo(dtype).bits >= 64 else 1e-5
 
 
-def check_jacobian_fits(energy: Energy, dtype, name: str) -> None:
+def check_jacobian_fits(energy: Energy, dtype, name: str, alternative: str = "") -> None:
     """Refuse a dense Jacobian that would not fit, with the way out, instead of running out
     of memory (the full solve on a shape mesh of thousands of vertices)."""
     rows = 2 * (energy.laplacian_index.shape[0] + energy.mvc_centre.shape[0]
@@ -29,7 +29,8 @@ def check_jacobian_fits(energy: Energy, dtype, name: str) -> None:
         raise ValueError(
             f"{name} materialises the dense Jacobian of the energy, {size / 2**30:.1f} GiB for "
             f"this rig's {energy.num_vertices} control vertices; on a mesh this large use "
-            "mvcjax.FixedG (with anderson=... and stop_early=True to solve to a tolerance)."
+            f"{alternative}mvcjax.FixedG (with anderson=... and stop_early=True to solve to a "
+            "tolerance)."
         )
 
 

@@ -60,7 +60,8 @@ class _OptimistixLeastSquares(AbstractSolver):
 
     def _configured(self, energy, factor, dtype):
         if self.linear_solver == "cholesky":
-            check_jacobian_fits(energy, dtype, f"{type(self).__name__}(linear_solver='cholesky')")
+            check_jacobian_fits(energy, dtype, f"{type(self).__name__}(linear_solver='cholesky')",
+                                f"the default {type(self).__name__}(linear_solver='cg') or ")
         rtol = default_tol(dtype) if self.rtol is None else self.rtol
         atol = default_tol(dtype) if self.atol is None else self.atol
         return self._solver(rtol, atol, self._linear_solver(factor))
