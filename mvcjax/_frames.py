@@ -18,7 +18,7 @@ from ._solvers import AbstractSolver, FixedG
 def _frames_last(rig: Rig, solver: AbstractSolver) -> bool:
     """Whether `_fixed_g_frames_last` computes what `rig.solve(t, solver)` does."""
     return (type(solver) is FixedG and solver.anderson == 0 and not solver.stop_early
-            and solver.adjoint == "unrolled" and isinstance(rig.factor, DenseFactor))
+            and solver.adjoint == "unrolled" and type(rig.factor) is DenseFactor)
 
 
 def _fixed_g_frames_last(rig: Rig, targets, solver: FixedG):
@@ -130,6 +130,8 @@ def deform_frames(
         )
     if chunk < 1:
         raise ValueError(f"chunk must be a positive number of frames, got {chunk}.")
+    if targets.shape[0] == 0:
+        raise ValueError("targets hold no frames (shape (0, h, 2)); give at least one frame.")
     targets = targets.astype(rig.energy.rest.dtype)
     frames = targets.shape[0]
     devices = [jax.devices()[0]] if devices is None else list(devices)

@@ -96,8 +96,8 @@ for name, solver in solvers.items():
 
 # %%
 recorded = {
-    "fixed_g": (mvcjax.FixedG(), 4000),
-    "anderson": (mvcjax.FixedG(anderson=5), 300),
+    "fixed_g": (mvcjax.FixedG(unroll=0), 4000),
+    "anderson": (mvcjax.FixedG(anderson=5, unroll=0), 300),
     "gauss_newton": (mvcjax.GaussNewton(), 150),
     "dogleg": (mvcjax.Dogleg(), 150),
     "levenberg_marquardt": (mvcjax.LevenbergMarquardt(), 150),
@@ -122,25 +122,14 @@ print("steps to a relative gap of 1e-6:", to_gap)
 # %% [markdown]
 # ## Time per step, and energy against time
 # A step of each solver is timed as the benchmark does: a solve of exactly the steps it
-# needed to reach the gap (tolerances off), compiled first, median of several calls,
-# divided by the steps.
+# needed to reach the gap (`solver.fixed_steps(n)`: the same solver, its stopping
+# criteria off), compiled first, median of several calls, divided by the steps.
 
 # %%
-import dataclasses  # noqa: E402
-
-
-def exactly(solver, steps):
-    if isinstance(solver, mvcjax.FixedG):
-        return dataclasses.replace(solver, iterations=steps, stop_early=False, unroll=0)
-    if isinstance(solver, mvcjax.JaxoptLevenbergMarquardt):
-        return dataclasses.replace(solver, max_steps=steps, tol=0.0)
-    return dataclasses.replace(solver, max_steps=steps, rtol=0.0, atol=0.0)
-
-
 step_ms, time_to_gap = {}, {}
 for name, (solver, recorded_steps) in recorded.items():
     steps = to_gap[name] or recorded_steps
-    ms = median_ms(jax.jit(lambda t, s=exactly(solver, steps): rig.solve(t, s)), targets,
+    ms = median_ms(jax.jit(lambda t, s=solver.fixed_steps(steps): rig.solve(t, s)), targets,
                    repeats=5)
     step_ms[name] = ms / steps
     time_to_gap[name] = ms if to_gap[name] is not None else None
@@ -172,8 +161,8 @@ plt.show()
 # %% [markdown]
 # The structured Gauss-Newton steps cost a handful of fixed-G steps each (a dense
 # Jacobian with Cholesky costs hundreds, see the table below), and they get to the gap in
-# tens of steps where fixed-G needs thousands. Anderson's steps cost about as much as
-# plain ones, and it needs a twentieth of them.
+# tens of steps where fixed-G needs thousands. Anderson's steps cost two to three plain
+# ones, and it needs a twentieth of them.
 #
 # The energy is not convex: from the same start the solvers can settle in different
 # stationary points (on this drag they all find the same one). `tests/test_solvers.py`
@@ -183,7 +172,7 @@ plt.show()
 # %% [markdown]
 # ## Gradients through the solvers
 # At convergence the solvers return the same minimum, so their implicit gradients agree
-# (optimistix's, and `FixedG(adjoint="implicit")`'s, to about 1e-8 here). The unrolled
+# (optimistix's, and `FixedG(adjoint="implicit")`'s, here with Anderson acceleration). The unrolled
 # gradient of a plain `FixedG` is the exact derivative of what its loop computed: after
 # 3000 steps, which on this drag are not yet at the minimum (see the plot above), it
 # differs from them in the fourth digit.
@@ -195,12 +184,14 @@ def landmark_loss(t, solver):
 
 for name, solver in {
     "fixed_g (unrolled, 3000 steps)": mvcjax.FixedG(iterations=3000, unroll=0),
-    "fixed_g (implicit)": mvcjax.FixedG(iterations=10000, rtol=1e-12, stop_early=True,
-                                        adjoint="implicit"),
+    "anderson (implicit)": mvcjax.FixedG(iterations=5000, rtol=1e-12, stop_early=True,
+                                         anderson=5, adjoint="implicit"),
     "gauss_newton (implicit)": mvcjax.GaussNewton(),
 }.items():
+    _, info = rig.solve(targets, solver, return_info=True)
     g = jax.jit(jax.grad(landmark_loss), static_argnums=1)(targets, solver)
-    print(f"{name:32} d loss / d targets[0] = {np.asarray(g[0]).round(8)}")
+    print(f"{name:32} converged {bool(info.converged)!s:5}  "
+          f"d loss / d targets[0] = {np.asarray(g[0]).round(8)}")
 
 # %% [markdown]
 # ## The benchmark's results

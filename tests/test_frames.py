@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import mvcjax
+from mvcjax._frames import _frames_last
 
 
 def some_frames(rig, count, seed=0):
@@ -31,6 +32,7 @@ def test_frames_match_single_frames(horse_rig):
                          ids=["frames_last", "vmapped"])
 def test_each_batch_path_matches_single_frames(horse_rig, solver):
     # A plain FixedG runs with the frames on the last axis; any other solver is vmapped.
+    assert _frames_last(horse_rig, solver) == (solver.anderson == 0)
     targets = some_frames(horse_rig, 5, seed=1)
     together = mvcjax.deform_frames(horse_rig, targets, solver, chunk=2)
     for k in range(5):
@@ -53,6 +55,8 @@ def test_gradient_through_frames_matches_single_frames(horse_rig):
 def test_bad_frames_are_explained(horse_rig):
     with pytest.raises(ValueError, match="targets must have shape \\(frames, 5, 2\\)"):
         mvcjax.deform_frames(horse_rig, horse_rig.handle_positions)
+    with pytest.raises(ValueError, match="no frames"):
+        mvcjax.deform_frames(horse_rig, jnp.zeros((0, 5, 2)))
     with pytest.raises(ValueError, match="chunk must be"):
         mvcjax.deform_frames(horse_rig, some_frames(horse_rig, 2), chunk=0)
 

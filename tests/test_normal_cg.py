@@ -1,5 +1,6 @@
 """Preconditioned conjugate gradients and the Gauss-Newton linear solve built on them."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import lineax as lx
@@ -64,3 +65,19 @@ def test_structured_step_options_are_checked():
         mvcjax.GaussNewton(linear_solver="qr")
     with pytest.raises(ValueError, match="cg_steps"):
         mvcjax.Dogleg(cg_steps=0)
+    with pytest.raises(ValueError, match="cg_rtol"):
+        mvcjax.GaussNewton(cg_rtol=1.0)
+
+
+def test_normal_cg_reports_a_step_it_could_not_take(horse_rig):
+    # With a preconditioner that is not positive definite CG cannot leave zero: a
+    # breakdown, not a zero step that the outer solver would take for convergence.
+    targets = drag(horse_rig, np.array([[60.0, 0.0]] + [[0.0, 0.0]] * 4))
+    start = horse_rig.start(targets)
+    r, linear = jax.linearize(lambda v: mvcjax.residuals(horse_rig.energy, v, targets), start)
+    operator = lx.FunctionLinearOperator(linear, jax.eval_shape(lambda: start))
+    factor = horse_rig.factor
+    negated = eqx.tree_at(lambda f: f.normal_inverse, factor, -factor.normal_inverse)
+    solution = lx.linear_solve(operator, r, NormalCG(negated, rtol=1e-3, max_steps=5),
+                               throw=False)
+    assert solution.result == lx.RESULTS.breakdown

@@ -259,23 +259,19 @@ def test_implicit_gradients_match_finite_differences_and_the_unrolled_one(stick_
     assert float(grads[1]) == pytest.approx(unrolled[1], rel=1e-4)
 
 
-def test_implicit_fixed_g_needs_no_unrolling(stick_gradients):
-    # Reverse mode through the while loop of stop_early: impossible unrolled, fine implicit.
+def test_stop_early_needs_the_implicit_adjoint_for_reverse_mode(stick_gradients):
+    # Reverse mode cannot unroll the while loop of stop_early; the implicit adjoint
+    # differentiates it at the minimum it stops at.
     loss, targets, _, _, _ = stick_gradients
-    early = mvcjax.FixedG(iterations=1000, stop_early=True)
+    early = mvcjax.FixedG(iterations=3000, stop_early=True, anderson=5)
     with pytest.raises(ValueError, match="while_loop"):
         jax.grad(loss, argnums=1)(early, targets, 0.0)
+    implicit = dataclasses.replace(early, adjoint="implicit")
+    assert bool(jnp.all(jnp.isfinite(jax.grad(loss, argnums=1)(implicit, targets, 0.0))))
     with pytest.raises(ValueError, match="adjoint"):
         mvcjax.FixedG(adjoint="backprop")
-
-
-def exactly(solver, steps):
-    """The solver running exactly `steps` steps, tolerances off."""
-    if isinstance(solver, mvcjax.FixedG):
-        return dataclasses.replace(solver, iterations=steps, stop_early=False)
-    if isinstance(solver, mvcjax.JaxoptLevenbergMarquardt):
-        return dataclasses.replace(solver, max_steps=steps, tol=0.0)
-    return dataclasses.replace(solver, max_steps=steps, rtol=0.0, atol=0.0)
+    with pytest.raises(ValueError, match="stop_early=True"):
+        mvcjax.FixedG(adjoint="implicit")
 
 
 @pytest.mark.parametrize("solver", [
@@ -286,7 +282,7 @@ def test_energy_history_ends_where_the_solve_does(horse_rig, solver):
     targets = targets_for(horse_rig, 0, [60.0, 0.0])
     steps = 12
     history = horse_rig.energy_history(targets, solver, steps)
-    _, info = horse_rig.solve(targets, exactly(solver, steps), return_info=True)
+    _, info = horse_rig.solve(targets, solver.fixed_steps(steps), return_info=True)
     assert history.shape == (steps + 1,)
     assert float(history[0]) == pytest.approx(
         float(mvcjax.total_energy(horse_rig.energy, horse_rig.start(targets), targets)))
@@ -315,3 +311,13 @@ def test_energy_history_errors(horse_rig):
         horse_rig.energy_history(horse_rig.handle_positions, mvcjax.FixedG(), 0)
     with pytest.raises(TypeError, match="mvcjax solver"):
         horse_rig.energy_history(horse_rig.handle_positions, "fixed_g", 5)
+
+
+@pytest.mark.parametrize("solver", [mvcjax.FixedG(stop_early=True), mvcjax.GaussNewton(),
+                                    mvcjax.JaxoptGaussNewton()], ids=lambda s: type(s).__name__)
+def test_fixed_steps_runs_exactly_that_many(horse_rig, solver):
+    targets = targets_for(horse_rig, 0, [20.0, 0.0])
+    _, info = horse_rig.solve(targets, solver.fixed_steps(7), return_info=True)
+    assert int(info.iterations) == 7
+    with pytest.raises(ValueError, match="at least 1 step"):
+        solver.fixed_steps(0)

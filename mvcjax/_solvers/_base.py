@@ -51,6 +51,19 @@ class AbstractSolver(eqx.Module):
             init: `(n, 2)` starting control vertices.
         """
 
+    def fixed_steps(self, steps: int) -> AbstractSolver:
+        """The same solver running exactly `steps` steps, its stopping test off: to time
+        solvers over equal numbers of steps. Its `converged` is then no verdict: `FixedG`
+        reports whether its tolerance held at the last step; the optimistix and jaxopt
+        solvers, whose stopping test is what is turned off, report `False`."""
+        raise NotImplementedError(f"{type(self).__name__} cannot run a fixed number of steps.")
+
+
+def check_steps(solver: AbstractSolver, steps: int) -> int:
+    if steps < 1:
+        raise ValueError(f"{type(solver).__name__}.fixed_steps({steps}): needs at least 1 step.")
+    return steps
+
     def history(
         self,
         energy: Energy,

@@ -3,15 +3,16 @@ Anderson acceleration."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
 from .._energy import total_energy
-from ._base import AbstractSolver, SolveInfo
-from ._least_squares import default_tol
-from ._normal_cg import conjugate_gradient
+from ._base import AbstractSolver, SolveInfo, check_steps
+from ._normal_cg import hessian_solve
 
 ADJOINTS = ("unrolled", "implicit")
 
@@ -77,7 +78,7 @@ class FixedG(AbstractSolver):
             returned vertices, taken to be a stationary point of the energy: one
             linear solve with the energy's Hessian (conjugate gradients preconditioned
             by the rig's factor), whatever the number of iterations. Right for solves
-            run to convergence; wrong for the paper's 15 iterations, which stop short.
+            run to convergence, so it requires `stop_early=True`.
         anderson: if positive, Anderson acceleration over the last `anderson` steps,
             with three safeguards: a ridge on the small least-squares system, an energy
             check (an extrapolation that does not lower the energy below the plain
@@ -98,6 +99,13 @@ class FixedG(AbstractSolver):
     def __check_init__(self):
         if self.adjoint not in ADJOINTS:
             raise ValueError(f"FixedG(adjoint={self.adjoint!r}): choose one of {ADJOINTS}.")
+        if self.adjoint == "implicit" and not self.stop_early:
+            raise ValueError(
+                "FixedG(adjoint='implicit') differentiates at a minimum, which a fixed "
+                f"number of iterations ({self.iterations}) does not reach: add "
+                "stop_early=True (with enough iterations, or anderson=...), or keep the "
+                "default adjoint='unrolled'."
+            )
         if self.iterations < 1:
             raise ValueError(f"FixedG(iterations={self.iterations}): needs at least 1 iteration.")
         if self.anderson < 0:
@@ -151,12 +159,10 @@ class FixedG(AbstractSolver):
             return vertices, jnp.stack([info.iterations, info.converged]).astype(start.dtype)
 
         def tangent_solve(hessian, rhs):
-            def cg(matvec, b):
-                return conjugate_gradient(matvec, b, factor.solve_normal,
-                                          default_tol(b.dtype), 4 * b.size)[0]
-
             # A linear solve that JAX can transpose, so that reverse mode works too.
-            return jax.lax.custom_linear_solve(hessian, rhs, cg, symmetric=True)
+            return jax.lax.custom_linear_solve(
+                hessian, rhs, lambda matvec, b: hessian_solve(matvec, b, factor), symmetric=True
+            )
 
         vertices, (iterations, converged) = jax.lax.custom_root(
             half_gradient, init, run, tangent_solve, has_aux=True
@@ -194,6 +200,10 @@ class FixedG(AbstractSolver):
             energy=total_energy(energy, vertices, targets),
         )
         return vertices, info
+
+    def fixed_steps(self, steps):
+        return dataclasses.replace(self, iterations=check_steps(self, steps), stop_early=False,
+                                   adjoint="unrolled")
 
     def history(self, energy, factor, targets, init, steps):
         advance, memory0 = self._advance(energy, factor, targets, init)

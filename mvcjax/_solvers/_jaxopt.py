@@ -10,13 +10,14 @@ for type DynamicJaxprTracer"), an upstream bug that the other solvers do not hav
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ._base import AbstractSolver
+from ._base import AbstractSolver, check_steps
 from ._least_squares import ScaledProblem, check_jacobian_fits
 
 
@@ -60,6 +61,9 @@ class _JaxoptLeastSquares(AbstractSolver):
         # there; closed over, it would leak tracers out of jaxopt's custom VJP.
         x, state = solver.run(problem.scaled(init).reshape(-1), problem)
         return problem.result(x.reshape(init.shape), state.error <= tol, state.iter_num)
+
+    def fixed_steps(self, steps):
+        return dataclasses.replace(self, max_steps=check_steps(self, steps), tol=0.0)
 
     def history(self, energy, factor, targets, init, steps):
         solver, _ = self._configured(energy, init)

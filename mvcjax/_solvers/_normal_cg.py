@@ -8,8 +8,13 @@ costs about one local step). The normal matrix `J^T J` is `N = A^T W A` (the fix
 iteration's matrix, factored once when the rig was built) perturbed by the rotation
 terms, so `N^{-1}` is a nearly exact preconditioner: nothing is materialised, and each
 conjugate-gradient iteration costs one product with `J`, one with `J^T` and one with
-`N^{-1}`. Its first iterate is the fixed-G step (at any `V`, `J^T r = A^T W r`), and
-later ones improve on it within the Gauss-Newton model.
+`N^{-1}`. Its first iterate points along the fixed-G step (at any `V`,
+`J^T r = A^T W r`, since each rotation term's derivative is orthogonal to its
+residual), and later ones improve on it within the Gauss-Newton model.
+
+Gradients through a solve need the Hessian of the energy at the solution instead:
+`HessianCG` solves with it by the same preconditioned conjugate gradients, so that the
+implicit adjoint never forms a `2n x 2n` matrix either.
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ import jax.numpy as jnp
 import lineax as lx
 
 from .._factor import AbstractFactor
+from ._least_squares import default_tol
 
 
 def _dot(a, b):
@@ -67,14 +73,23 @@ def conjugate_gradient(matvec, b, precondition, rtol: float, max_steps: int):
     return x, steps
 
 
+def hessian_solve(matvec, b, factor: AbstractFactor):
+    """`H^{-1} b` for the energy's Hessian `H` (`matvec`, symmetric positive definite at
+    a strict minimum), by conjugate gradients preconditioned by the factor's `N^{-1}`, to
+    the least-squares solvers' tolerance. Used by implicit differentiation; a direction
+    of non-positive curvature (not a minimum) ends it early."""
+    return conjugate_gradient(matvec, b, factor.solve_normal, default_tol(b.dtype), 4 * b.size)[0]
+
+
 class NormalCG(lx.AbstractLinearSolver):
     """Least squares `min |J x - r|` by preconditioned conjugate gradients on
     `J^T J x = J^T r`, with `N^{-1}` from the rig's factor as the preconditioner.
 
     A truncated (inexact) Newton solve: it stops after `max_steps` iterations or when
-    the preconditioned residual has fallen by `rtol`, and always reports success, since
-    any iterate is a descent direction that the outer solver's line search or trust
-    region then judges.
+    the preconditioned residual has fallen by `rtol`. It reports success whenever it
+    moved (any iterate is a descent direction, which the outer solver's line search or
+    trust region then judges) and a breakdown when it could not leave zero with a
+    nonzero gradient, so that a solver never takes a zero step for convergence.
 
     Attributes:
         factor: the rig's factor (its `solve_normal` is the preconditioner).
@@ -94,17 +109,49 @@ class NormalCG(lx.AbstractLinearSolver):
         del options
         operator = state
         transposed = operator.transpose()
+        gradient = transposed.mv(vector)
         x, steps = conjugate_gradient(
-            lambda x: transposed.mv(operator.mv(x)), transposed.mv(vector),
+            lambda x: transposed.mv(operator.mv(x)), gradient,
             self.factor.solve_normal, self.rtol, self.max_steps,
         )
-        return x, lx.RESULTS.successful, {"num_steps": steps}
+        stuck = (_dot(x, x) == 0) & (_dot(gradient, gradient) > 0)
+        result = lx.RESULTS.where(stuck, lx.RESULTS.breakdown, lx.RESULTS.successful)
+        return x, result, {"num_steps": steps}
 
     def transpose(self, state, options):
         raise NotImplementedError(
             "NormalCG solves the forward Gauss-Newton steps only; gradients through a "
             "solve are implicit and use another linear solver."
         )
+
+    def conj(self, state, options):
+        return state, options
+
+    def assume_full_rank(self):
+        return True
+
+
+class HessianCG(lx.AbstractLinearSolver):
+    """The implicit adjoint's linear solve: the Jacobian of the gradient of the
+    least-squares objective (its Hessian, symmetric) by `hessian_solve`.
+
+    Attributes:
+        factor: the rig's factor, without gradients (the preconditioner does not change
+            the solution, and optimistix's adjoint takes no tangents through its solver).
+    """
+
+    factor: AbstractFactor
+
+    def init(self, operator: lx.AbstractLinearOperator, options: dict[str, Any]):
+        del options
+        return lx.linearise(operator)
+
+    def compute(self, state, vector, options):
+        del options
+        return hessian_solve(state.mv, vector, self.factor), lx.RESULTS.successful, {}
+
+    def transpose(self, state, options):
+        return state.transpose(), options
 
     def conj(self, state, options):
         return state, options

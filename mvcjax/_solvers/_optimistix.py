@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 
 import equinox as eqx
@@ -10,9 +11,9 @@ import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
 
-from ._base import AbstractSolver
+from ._base import AbstractSolver, check_steps
 from ._least_squares import ScaledProblem, check_jacobian_fits, default_tol
-from ._normal_cg import NormalCG
+from ._normal_cg import HessianCG, NormalCG
 
 LINEAR_SOLVERS = ("cg", "cholesky")
 
@@ -49,6 +50,10 @@ class _OptimistixLeastSquares(AbstractSolver):
             )
         if self.cg_steps < 1:
             raise ValueError(f"{type(self).__name__}(cg_steps={self.cg_steps}): needs at least 1.")
+        if not 0 <= self.cg_rtol < 1:
+            raise ValueError(
+                f"{type(self).__name__}(cg_rtol={self.cg_rtol}): a relative decrease, in [0, 1)."
+            )
 
     def _solver(self, rtol: float, atol: float, linear_solver: lx.AbstractLinearSolver):
         raise NotImplementedError
@@ -72,11 +77,17 @@ class _OptimistixLeastSquares(AbstractSolver):
             lambda y, args: problem.residuals(y),
             self._configured(energy, factor, init.dtype),
             problem.scaled(init),
+            # Implicit gradients by CG on the Hessian: optimistix's default would form it
+            # densely (13 GB in float64 for a 20k-vertex full solve).
+            adjoint=optx.ImplicitAdjoint(linear_solver=HessianCG(jax.lax.stop_gradient(factor))),
             max_steps=self.max_steps,
             throw=False,
         )
         return problem.result(sol.value, sol.result == optx.RESULTS.successful,
                               sol.stats["num_steps"])
+
+    def fixed_steps(self, steps):
+        return dataclasses.replace(self, max_steps=check_steps(self, steps), rtol=0.0, atol=0.0)
 
     def history(self, energy, factor, targets, init, steps):
         solver = self._configured(energy, factor, init.dtype)
