@@ -345,3 +345,14 @@ def test_gradient_through_jaxopt_gauss_newton_where_it_converges():
     assert along == pytest.approx(float(fd), rel=1e-4)
     fixed = IMPLICIT["anderson_implicit"]
     assert along == pytest.approx(float(jnp.sum(grad(fixed, targets) * direction)), rel=1e-6)
+
+
+def test_a_solver_without_a_history_says_so(horse_rig):
+    class Plain(mvcjax.AbstractSolver):
+        def solve(self, energy, factor, targets, init):
+            return init, None
+
+    with pytest.raises(NotImplementedError, match="does not record its history"):
+        horse_rig.energy_history(horse_rig.handle_positions, Plain(), 3)
+    with pytest.raises(NotImplementedError, match="fixed number of steps"):
+        Plain().fixed_steps(3)

@@ -58,12 +58,6 @@ class AbstractSolver(eqx.Module):
         solvers, whose stopping test is what is turned off, report `False`."""
         raise NotImplementedError(f"{type(self).__name__} cannot run a fixed number of steps.")
 
-
-def check_steps(solver: AbstractSolver, steps: int) -> int:
-    if steps < 1:
-        raise ValueError(f"{type(solver).__name__}.fixed_steps({steps}): needs at least 1 step.")
-    return steps
-
     def history(
         self,
         energy: Energy,
@@ -79,3 +73,9 @@ def check_steps(solver: AbstractSolver, steps: int) -> int:
         optimistix or jaxopt step (which may be a rejected trial).
         """
         raise NotImplementedError(f"{type(self).__name__} does not record its history.")
+
+
+def check_steps(solver: AbstractSolver, steps: int) -> int:
+    if steps < 1:
+        raise ValueError(f"{type(solver).__name__}.fixed_steps({steps}): needs at least 1 step.")
+    return steps
