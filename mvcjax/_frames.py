@@ -1,5 +1,5 @@
-"""Many frames at once: the deformation vmapped over a batch of targets, in chunks, and
-sharded over devices."""
+"""Many frames at once: the deformation over a batch of targets, in chunks, and sharded
+over devices."""
 
 from __future__ import annotations
 
@@ -54,6 +54,16 @@ def _fixed_g_frames_last(rig: Rig, targets, solver: FixedG):
     return jax.lax.fori_loop(0, solver.iterations, step, start)
 
 
+def _pad_frames(targets, multiple: int):
+    """`targets` with the last frame repeated up to a multiple of `multiple` frames (the
+    copies are dropped from the result)."""
+    frames = targets.shape[0]
+    padded = -(-frames // multiple) * multiple
+    if padded == frames:
+        return targets
+    return jnp.concatenate([targets, jnp.repeat(targets[-1:], padded - frames, 0)])
+
+
 def _deform_chunked(rig: Rig, targets, solver: AbstractSolver, chunk: int):
     # Skinning as one dense product per chunk: vmapped, the gather of every frame's rows
     # is ten times slower than the matrix product with all the chunk's frames at once.
@@ -61,15 +71,13 @@ def _deform_chunked(rig: Rig, targets, solver: AbstractSolver, chunk: int):
     frames = targets.shape[0]
     if _frames_last(rig, solver):
         chunk = min(chunk, frames)
-        padded = -(-frames // chunk) * chunk
-        if padded > frames:  # repeat the last frame; its copies are dropped below
-            targets = jnp.concatenate([targets, jnp.repeat(targets[-1:], padded - frames, 0)])
+        targets = _pad_frames(targets, chunk)
 
         def one(t):
             return jnp.einsum("nc,cdf->fnd", weights, _fixed_g_frames_last(rig, t, solver))
 
-        out = jax.lax.map(one, targets.reshape(padded // chunk, chunk, *targets.shape[1:]))
-        return out.reshape(padded, *out.shape[2:])[:frames]
+        out = jax.lax.map(one, targets.reshape(-1, chunk, *targets.shape[1:]))
+        return out.reshape(-1, *out.shape[2:])[:frames]
     return jax.lax.map(lambda t: weights @ rig.solve(t, solver), targets, batch_size=chunk)
 
 
@@ -138,9 +146,7 @@ def deform_frames(
     if len(devices) == 1:
         return _deform_one_device(rig, targets, solver, min(chunk, frames))
     per_device = -(-frames // len(devices))
-    padded = per_device * len(devices)
-    if padded > frames:  # repeat the last frame; its copies are dropped below
-        targets = jnp.concatenate([targets, jnp.repeat(targets[-1:], padded - frames, 0)])
+    targets = _pad_frames(targets, len(devices))
     mesh = Mesh(np.asarray(devices), ("frames",))
     targets = jax.device_put(targets, NamedSharding(mesh, PartitionSpec("frames")))
     rig = jax.device_put(rig, NamedSharding(mesh, PartitionSpec()))
