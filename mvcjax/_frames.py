@@ -48,7 +48,7 @@ def _fixed_g_frames_last(rig: Rig, targets, solver: FixedG):
         nonzero = sq > 0
         scale = jnp.where(nonzero, factor.length[:, None] * jax.lax.rsqrt(jnp.where(nonzero, sq, 1.0)),
                           0.0)
-        return jnp.einsum("nm,mdf->ndf", factor.shape,
+        return jnp.einsum("mn,mdf->ndf", factor.shape,
                           jnp.stack([x * scale, y * scale], axis=1)) + handle_part
 
     return jax.lax.fori_loop(0, solver.iterations, step, start)

@@ -24,8 +24,8 @@ def test_sparse_and_dense_steps_agree(small_full):
     assert isinstance(dense, DenseFactor) and isinstance(sparse, SparseFactor)
     targets = drag(small_full, [[10.0, 5.0], [0.0, -3.0]])
     v = energy.rest + jax.random.normal(jax.random.key(0), energy.rest.shape)
-    a = dense.step(v, dense.handle_part(targets))
-    b = sparse.step(v, sparse.handle_part(targets))
+    a = dense.step(v.T, dense.handle_part(targets))
+    b = sparse.step(v.T, sparse.handle_part(targets))
     np.testing.assert_allclose(a, b, atol=1e-9 * float(energy.scale))
 
 

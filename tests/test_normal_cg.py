@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import mvcjax
-from mvcjax._solvers._normal_cg import NormalCG, conjugate_gradient
+from mvcjax._solvers._normal_cg import UNROLL_STEPS, NormalCG, conjugate_gradient
 
 from conftest import drag
 
@@ -23,6 +23,20 @@ def test_conjugate_gradient_solves_a_positive_definite_system():
                                   rtol=1e-12, max_steps=500)
     np.testing.assert_allclose(x, np.linalg.solve(matrix, b), rtol=1e-8, atol=1e-10)
     assert 0 < int(steps) <= 500
+
+
+def test_unrolled_and_looped_conjugate_gradients_stop_alike():
+    # A short budget runs unrolled, with the stopping test as a mask; a long one loops.
+    # Both stop at the same iteration with the same iterate.
+    rng = np.random.default_rng(1)
+    a = rng.normal(size=(40, 40))
+    matrix = jnp.asarray(a @ a.T / 40 + np.diag(np.linspace(1.0, 3.0, 40)))
+    b = jnp.asarray(rng.normal(size=(40,)))
+    unrolled = conjugate_gradient(lambda v: matrix @ v, b, lambda r: r, 1e-2, UNROLL_STEPS)
+    looped = conjugate_gradient(lambda v: matrix @ v, b, lambda r: r, 1e-2, UNROLL_STEPS + 1)
+    assert 0 < int(unrolled[1]) < UNROLL_STEPS
+    assert int(unrolled[1]) == int(looped[1])
+    np.testing.assert_allclose(unrolled[0], looped[0], rtol=1e-12)
 
 
 def test_conjugate_gradient_zero_right_hand_side_gives_zero_not_nan():
@@ -41,10 +55,10 @@ def test_normal_cg_matches_the_dense_least_squares_step(horse_rig):
     # The Gauss-Newton step of the energy at a dragged start: CG run to a tight tolerance
     # gives the dense least-squares solution; its first iterate is along the fixed-G step.
     targets = drag(horse_rig, np.array([[60.0, 0.0]] + [[0.0, 0.0]] * 4))
-    start = horse_rig.start(targets)
+    start = horse_rig.start(targets).T  # coordinate rows, the factor's layout
 
-    def residual(v):
-        return mvcjax.residuals(horse_rig.energy, v, targets)
+    def residual(columns):
+        return mvcjax.residuals(horse_rig.energy, columns.T, targets)
 
     r, linear = jax.linearize(residual, start)
     operator = lx.FunctionLinearOperator(linear, jax.eval_shape(lambda: start))
@@ -73,8 +87,8 @@ def test_normal_cg_reports_a_step_it_could_not_take(horse_rig):
     # With a preconditioner that is not positive definite CG cannot leave zero: a
     # breakdown, not a zero step that the outer solver would take for convergence.
     targets = drag(horse_rig, np.array([[60.0, 0.0]] + [[0.0, 0.0]] * 4))
-    start = horse_rig.start(targets)
-    r, linear = jax.linearize(lambda v: mvcjax.residuals(horse_rig.energy, v, targets), start)
+    start = horse_rig.start(targets).T
+    r, linear = jax.linearize(lambda c: mvcjax.residuals(horse_rig.energy, c.T, targets), start)
     operator = lx.FunctionLinearOperator(linear, jax.eval_shape(lambda: start))
     factor = horse_rig.factor
     negated = eqx.tree_at(lambda f: f.normal_inverse, factor, -factor.normal_inverse)

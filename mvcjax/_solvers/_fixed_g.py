@@ -112,9 +112,10 @@ class FixedG(AbstractSolver):
             raise ValueError(f"FixedG(anderson={self.anderson}): the memory must be >= 0.")
 
     def _advance(self, energy, factor, targets, init):
-        """One step `(v, memory) -> (v, largest move, memory)` and the initial memory."""
+        """One step `(v, memory) -> (v, largest move, memory)` on the coordinate rows `V^T`
+        (the factor's layout), and the initial memory."""
         handle_part = factor.handle_part(targets)
-        shape = init.shape
+        shape = init.T.shape
 
         def plain(v):
             return factor.step(v, handle_part)
@@ -132,7 +133,7 @@ class FixedG(AbstractSolver):
             f = (g - v).reshape(-1)
             mixed, memory = _anderson_extrapolate(memory, g.reshape(-1), f, self.regularisation)
             mixed = mixed.reshape(shape)
-            better = total_energy(energy, mixed, targets) <= total_energy(energy, g, targets)
+            better = total_energy(energy, mixed.T, targets) <= total_energy(energy, g.T, targets)
             memory = jax.tree.map(
                 lambda new, fresh: jnp.where(better, new, fresh),
                 memory,
@@ -158,10 +159,14 @@ class FixedG(AbstractSolver):
             # rejects: carry the counts as floats.
             return vertices, jnp.stack([info.iterations, info.converged]).astype(start.dtype)
 
+        def precondition(r):
+            return factor.solve_normal(r.T).T  # vertices (n, 2), the factor's (2, n)
+
         def tangent_solve(hessian, rhs):
             # A linear solve that JAX can transpose, so that reverse mode works too.
             return jax.lax.custom_linear_solve(
-                hessian, rhs, lambda matvec, b: hessian_solve(matvec, b, factor), symmetric=True
+                hessian, rhs, lambda matvec, b: hessian_solve(matvec, b, precondition),
+                symmetric=True,
             )
 
         vertices, (iterations, converged) = jax.lax.custom_root(
@@ -177,7 +182,7 @@ class FixedG(AbstractSolver):
         advance, memory0 = self._advance(energy, factor, targets, init)
         tol = self.rtol * energy.scale
         inf = jnp.asarray(jnp.inf, init.dtype)
-        carry0 = (jnp.zeros((), jnp.int32), init, inf, memory0)
+        carry0 = (jnp.zeros((), jnp.int32), init.T, inf, memory0)
 
         def body(carry):
             k, v, _, memory = carry
@@ -193,7 +198,8 @@ class FixedG(AbstractSolver):
                 0, self.iterations, lambda _, c: body(c), carry0,
                 unroll=self.iterations <= self.unroll,
             )
-        iterations, vertices, residual, _ = carry
+        iterations, columns, residual, _ = carry
+        vertices = columns.T
         info = SolveInfo(
             converged=residual <= tol,
             iterations=iterations,
@@ -211,7 +217,7 @@ class FixedG(AbstractSolver):
         def body(carry, _):
             v, memory = carry
             v, _, memory = advance(v, memory)
-            return (v, memory), total_energy(energy, v, targets)
+            return (v, memory), total_energy(energy, v.T, targets)
 
-        _, energies = jax.lax.scan(body, (init, memory0), length=steps)
+        _, energies = jax.lax.scan(body, (init.T, memory0), length=steps)
         return jnp.concatenate([total_energy(energy, init, targets)[None], energies])

@@ -49,9 +49,9 @@ class _JaxoptLeastSquares(AbstractSolver):
     def _configured(self, energy, init):
         check_jacobian_fits(energy, init.dtype, type(self).__name__)
         tol = (1e-8 if init.dtype.itemsize >= 8 else 1e-4) if self.tol is None else self.tol
-        shape = init.shape
+        shape = init.T.shape  # the scaled problem's coordinate-major layout
         # Flat parameters: jaxopt's Levenberg-Marquardt materialises the Jacobian as a matrix.
-        return self._solver(lambda x, p: p.residuals(x.reshape(shape)), tol), tol
+        return self._solver(lambda x, p: p.residuals(x.reshape(shape)).reshape(-1), tol), tol
 
     def solve(self, energy, factor, targets, init):
         solver, tol = self._configured(energy, init)
@@ -60,7 +60,7 @@ class _JaxoptLeastSquares(AbstractSolver):
         # respect to the arguments of `run`, so the problem (targets, weights) is passed
         # there; closed over, it would leak tracers out of jaxopt's custom VJP.
         x, state = solver.run(problem.scaled(init).reshape(-1), problem)
-        return problem.result(x.reshape(init.shape), state.error <= tol, state.iter_num)
+        return problem.result(x.reshape(init.T.shape), state.error <= tol, state.iter_num)
 
     def fixed_steps(self, steps):
         return dataclasses.replace(self, max_steps=check_steps(self, steps), tol=0.0)
@@ -72,10 +72,10 @@ class _JaxoptLeastSquares(AbstractSolver):
 
         def body(carry, _):
             x, state = solver.update(*carry, problem)
-            return (x, state), problem.energy_at(x.reshape(init.shape))
+            return (x, state), problem.energy_at(x.reshape(init.T.shape))
 
         _, energies = jax.lax.scan(body, (x0, solver.init_state(x0, problem)), length=steps)
-        return jnp.concatenate([problem.energy_at(x0.reshape(init.shape))[None], energies])
+        return jnp.concatenate([problem.energy_at(x0.reshape(init.T.shape))[None], energies])
 
 
 class JaxoptGaussNewton(_JaxoptLeastSquares):
