@@ -6,7 +6,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Complex, Float, Int
 
 from .._energy import Energy, total_energy
 from .._factor import _local_rows
@@ -42,17 +42,22 @@ class ScaledProblem(eqx.Module):
 
     The unknowns `y` are coordinate-major, `(2, n)`, the layout of the factor's products
     (`AbstractFactor.solve_normal` preconditions the solvers' linear solves). The
-    residuals are those of `mvcjax.residuals` divided by the scale, in another order:
-    the Laplacian and edge rows merged (one gather of points as complex numbers, as in
-    the fixed-G local step), then the mean value and handle rows. Every solver step
-    linearises and transposes them, and this form halves what that costs.
+    residuals are those of `mvcjax.residuals` divided by the scale, in another order and
+    in two gathers of points as complex numbers: the Laplacian, edge and handle rows
+    (three-point stencils, each turned to its rest length: zero for a handle, which
+    only moves by its target), then the mean value rows. Every solver step linearises
+    and transposes them; with four gathers (one per term, as `mvcjax.residuals` has)
+    that costs half as much again.
 
     Attributes:
         energy: the energy (6).
         targets: `(h, 2)` the handle targets.
-        rows, coef, length: the merged Laplacian and edge rows (see `AbstractFactor`),
-            `length` in scaled units.
-        row_weight: `(m,)` the square root of each merged row's weight.
+        rows, coef: `(m, 3)` the Laplacian, edge and handle stencils.
+        length: `(m,)` their rest lengths, in scaled units.
+        offset: `(m,)` what each stencil is measured from (the handle targets, scaled).
+        row_weight: `(m,)` the square root of each stencil's weight.
+        mvc_rows, mvc_coef: `(g, k + 1)` each inner vertex and its ring, with
+            coefficients `1` and minus its mean value coordinates.
     """
 
     energy: Energy
@@ -60,18 +65,32 @@ class ScaledProblem(eqx.Module):
     rows: Int[Array, "m 3"]
     coef: Float[Array, "m 3"]
     length: Float[Array, " m"]
+    offset: Complex[Array, " m"]
     row_weight: Float[Array, " m"]
+    mvc_rows: Int[Array, "g k1"]
+    mvc_coef: Float[Array, "g k1"]
 
     def __init__(self, energy: Energy, targets: Float[Array, "h 2"]):
         self.energy = energy
         self.targets = targets
-        self.rows, self.coef, length = _local_rows(energy)
-        self.length = length / energy.scale
+        rows, coef, length = _local_rows(energy)
+        h = energy.handles
+        dtype = length.dtype
+        self.rows = jnp.concatenate([rows, jnp.stack([h, h, h], axis=1)])
+        self.coef = jnp.concatenate([coef, jnp.zeros((h.shape[0], 3), dtype).at[:, 0].set(1)])
+        self.length = jnp.concatenate([length / energy.scale, jnp.zeros(h.shape, dtype)])
+        u = self.scaled(targets)
+        self.offset = jnp.concatenate([jnp.zeros(rows.shape[:1], dtype),
+                                       jax.lax.complex(u[0], u[1])])
         w = energy.weights
         self.row_weight = jnp.sqrt(jnp.concatenate([
             jnp.broadcast_to(w.laplacian, energy.laplacian_index.shape[:1]),
             jnp.broadcast_to(w.length, energy.edges.shape[:1]),
-        ])).astype(length.dtype)
+            jnp.broadcast_to(w.handle, h.shape),
+        ])).astype(dtype)
+        self.mvc_rows = jnp.concatenate([energy.mvc_centre[:, None], energy.mvc_ring], axis=1)
+        self.mvc_coef = jnp.sqrt(w.mvc).astype(dtype) * jnp.concatenate(
+            [jnp.ones_like(energy.mvc_weight[:, :1]), -energy.mvc_weight], axis=1)
 
     def scaled(self, vertices: Float[Array, "n 2"]) -> Float[Array, "2 n"]:
         return ((vertices - self.energy.rest.mean(axis=0)) / self.energy.scale).T
@@ -81,19 +100,15 @@ class ScaledProblem(eqx.Module):
 
     def residuals(self, y: Float[Array, "2 n"]) -> Float[Array, "2 r"]:
         """All residuals, weighted and scaled, as real and imaginary rows."""
-        e, w = self.energy, self.energy.weights
         z = jax.lax.complex(y[0], y[1])
         # Every row's coefficients sum to zero (Laplacian, edges) or one (mean value
-        # coordinates), so the centring drops out of the L, H and M rows.
-        v = jnp.sum(self.coef * z[self.rows], axis=1)
+        # coordinates, handles: measured from scaled targets), so the centring drops out.
+        v = jnp.sum(self.coef * z[self.rows], axis=1) - self.offset
         sq = jnp.real(v) ** 2 + jnp.imag(v) ** 2
         nonzero = sq > 0
         turned = v * jnp.where(nonzero, self.length * jax.lax.rsqrt(jnp.where(nonzero, sq, 1.0)), 0.0)
-        local = self.row_weight * (v - turned)
-        mvc = jnp.sqrt(w.mvc) * (z[e.mvc_centre] - jnp.sum(e.mvc_weight * z[e.mvc_ring], axis=1))
-        u = self.scaled(self.targets)
-        handle = jnp.sqrt(w.handle) * (z[e.handles] - jax.lax.complex(u[0], u[1]))
-        r = jnp.concatenate([local, mvc, handle])
+        mvc = jnp.sum(self.mvc_coef * z[self.mvc_rows], axis=1)
+        r = jnp.concatenate([self.row_weight * (v - turned), mvc])
         return jnp.stack([jnp.real(r), jnp.imag(r)])
 
     def energy_at(self, y: Float[Array, "2 n"]) -> Float[Array, ""]:
