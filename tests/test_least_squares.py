@@ -45,3 +45,9 @@ def test_residual_jacobian_gives_the_energy_gradient(problem):
     gradient = jax.grad(mvcjax.total_energy, argnums=1)(p.energy, vertices, p.targets)
     np.testing.assert_allclose(jtr.T * float(p.energy.scale), 0.5 * gradient,
                                rtol=1e-9, atol=1e-9 * float(jnp.abs(gradient).max()))
+
+
+def test_energy_of_columns_is_the_energy(problem):
+    p, vertices = problem
+    energy = mvcjax.total_energy(p.energy, vertices, p.targets)
+    assert float(p.energy_of_columns(vertices.T)) == pytest.approx(float(energy), rel=1e-12)

@@ -12,6 +12,7 @@ from jaxtyping import Array
 
 from .._energy import total_energy
 from ._base import AbstractSolver, SolveInfo, check_steps
+from ._least_squares import ScaledProblem
 from ._normal_cg import hessian_solve
 
 ADJOINTS = ("unrolled", "implicit")
@@ -128,12 +129,14 @@ class FixedG(AbstractSolver):
 
             return advance, None
 
+        energy_of = ScaledProblem(energy, targets).energy_of_columns
+
         def advance(v, memory):
             g = plain(v)
             f = (g - v).reshape(-1)
             mixed, memory = _anderson_extrapolate(memory, g.reshape(-1), f, self.regularisation)
             mixed = mixed.reshape(shape)
-            better = total_energy(energy, mixed.T, targets) <= total_energy(energy, g.T, targets)
+            better = energy_of(mixed) <= energy_of(g)
             memory = jax.tree.map(
                 lambda new, fresh: jnp.where(better, new, fresh),
                 memory,

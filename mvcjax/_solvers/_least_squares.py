@@ -112,7 +112,15 @@ class ScaledProblem(eqx.Module):
         return jnp.stack([jnp.real(r), jnp.imag(r)])
 
     def energy_at(self, y: Float[Array, "2 n"]) -> Float[Array, ""]:
+        """The energy (6) at `y`, by `mvcjax.total_energy` (what solvers report)."""
         return total_energy(self.energy, self.unscaled(y), self.targets)
+
+    def energy_of_columns(self, columns: Float[Array, "2 n"]) -> Float[Array, ""]:
+        """The energy (6) at the unscaled coordinate rows `V^T`, from `residuals`: the
+        cheaper form, for comparisons inside an iteration."""
+        y = (columns - self.energy.rest.mean(axis=0)[:, None]) / self.energy.scale
+        r = self.residuals(y)
+        return jnp.sum(r * r) * self.energy.scale**2
 
     def result(self, y: Float[Array, "2 n"], converged, iterations
                ) -> tuple[Float[Array, "n 2"], SolveInfo]:
