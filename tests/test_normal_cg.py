@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 import mvcjax
-from mvcjax._solvers._normal_cg import UNROLL_STEPS, NormalCG, conjugate_gradient
+from mvcjax._solvers import _normal_cg
+from mvcjax._solvers._normal_cg import NormalCG, conjugate_gradient
 
 from conftest import drag
 
@@ -25,18 +26,35 @@ def test_conjugate_gradient_solves_a_positive_definite_system():
     assert 0 < int(steps) <= 500
 
 
-def test_unrolled_and_looped_conjugate_gradients_stop_alike():
+@pytest.mark.parametrize("case", ["stops early", "runs out", "zero curvature"])
+def test_unrolled_and_looped_conjugate_gradients_agree(monkeypatch, case):
     # A short budget runs unrolled, with the stopping test as a mask; a long one loops.
-    # Both stop at the same iteration with the same iterate.
+    # With the same budget both stop at the same iteration with the same iterate.
     rng = np.random.default_rng(1)
     a = rng.normal(size=(40, 40))
     matrix = jnp.asarray(a @ a.T / 40 + np.diag(np.linspace(1.0, 3.0, 40)))
     b = jnp.asarray(rng.normal(size=(40,)))
-    unrolled = conjugate_gradient(lambda v: matrix @ v, b, lambda r: r, 1e-2, UNROLL_STEPS)
-    looped = conjugate_gradient(lambda v: matrix @ v, b, lambda r: r, 1e-2, UNROLL_STEPS + 1)
-    assert 0 < int(unrolled[1]) < UNROLL_STEPS
+    if case == "zero curvature":
+        # The right-hand side lies in the null space: the first direction has none.
+        matrix = matrix.at[:, :20].set(0.0).at[:20, :].set(0.0)
+        b = b.at[20:].set(0.0)
+    rtol = 1e-2 if case == "stops early" else 0.0
+
+    def run():
+        return conjugate_gradient(lambda v: matrix @ v, b, lambda r: r, rtol, 12)
+
+    unrolled = run()
+    monkeypatch.setattr(_normal_cg, "UNROLL_STEPS", 0)
+    looped = run()
     assert int(unrolled[1]) == int(looped[1])
-    np.testing.assert_allclose(unrolled[0], looped[0], rtol=1e-12)
+    if case == "stops early":
+        assert 0 < int(unrolled[1]) < 12
+    if case == "runs out":
+        assert int(unrolled[1]) == 12
+    if case == "zero curvature":
+        assert np.all(np.asarray(unrolled[0]) == 0)
+    assert np.all(np.isfinite(np.asarray(unrolled[0])))
+    np.testing.assert_allclose(unrolled[0], looped[0], rtol=1e-12, atol=1e-14)
 
 
 def test_conjugate_gradient_zero_right_hand_side_gives_zero_not_nan():

@@ -79,7 +79,7 @@ class ScaledProblem(eqx.Module):
         self.rows = jnp.concatenate([rows, jnp.stack([h, h, h], axis=1)])
         self.coef = jnp.concatenate([coef, jnp.zeros((h.shape[0], 3), dtype).at[:, 0].set(1)])
         self.length = jnp.concatenate([length / energy.scale, jnp.zeros(h.shape, dtype)])
-        u = self.scaled(targets)
+        u = self.scaled(targets).astype(dtype)
         self.offset = jnp.concatenate([jnp.zeros(rows.shape[:1], dtype),
                                        jax.lax.complex(u[0], u[1])])
         w = energy.weights
@@ -101,8 +101,8 @@ class ScaledProblem(eqx.Module):
     def residuals(self, y: Float[Array, "2 n"]) -> Float[Array, "2 r"]:
         """All residuals, weighted and scaled, as real and imaginary rows."""
         z = jax.lax.complex(y[0], y[1])
-        # Every row's coefficients sum to zero (Laplacian, edges) or one (mean value
-        # coordinates, handles: measured from scaled targets), so the centring drops out.
+        # Every row's coefficients sum to zero (Laplacian, edge and mean value rows) or
+        # one (handles, measured from the scaled targets), so the centring drops out.
         v = jnp.sum(self.coef * z[self.rows], axis=1) - self.offset
         sq = jnp.real(v) ** 2 + jnp.imag(v) ** 2
         nonzero = sq > 0

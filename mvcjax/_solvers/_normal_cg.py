@@ -5,8 +5,9 @@ The residuals of the energy (6) are `W^{1/2} (A V - b(V))`, so their Jacobian is
 `W^{1/2} (A - db/dV)` with `A` constant and sparse. Optimistix hands the linear solver
 that Jacobian as a matrix-free operator (`jax.linearize` of the residuals: a product
 costs about one local step). The normal matrix `J^T J` is `N = A^T W A` (the fixed-G
-iteration's matrix, factored once when the rig was built) less the rotation terms'
-`sum_r c_r Y_r^T P_r Y_r` (`P_r` the projection across Laplacian or edge vector `r`),
+iteration's matrix, factored once when the rig was built) less the rotation
+terms' `sum_r c_r Y_r^T P_r Y_r` (`P_r` the projection across Laplacian or edge
+vector `r`),
 so `N^{-1}` is the natural preconditioner: nothing is materialised, and each
 conjugate-gradient iteration costs one product with `J`, one with `J^T` and one with
 `N^{-1}`, about one fixed-G step in all. The rotations leave `J^T J` soft where `N` is
@@ -80,8 +81,8 @@ def conjugate_gradient(matvec, b, precondition, rtol: float, max_steps: int):
         # A few iterations (a truncated Newton step): unrolled, with the stopping test
         # as a mask, so that XLA fuses across iterations instead of running a loop.
         for _ in range(max_steps):
-            new = body(carry)
-            carry = jax.tree.map(lambda a, b_: jnp.where(cond(carry), a, b_), new, carry)
+            keep = cond(carry)
+            carry = jax.tree.map(lambda a, b_: jnp.where(keep, a, b_), body(carry), carry)
     else:
         carry = jax.lax.while_loop(cond, body, carry)
     steps, x, *_ = carry
