@@ -105,6 +105,15 @@ def _local_rows(energy: Energy) -> tuple[Int[Array, "m 3"], Float[Array, "m 3"],
     return rows, coef, jnp.concatenate([energy.laplacian_length, energy.edge_length])
 
 
+def length_scale(squared_length: Array, length: Array) -> Array:
+    """The factor that turns a vector of squared length `squared_length` to length
+    `length`: `length / |v|`, and 0 for a zero vector (instead of 0/0), with finite
+    gradients there. The local step's one nonlinearity, shared by the fixed-G step, the
+    least-squares residuals and the many-frames iteration."""
+    nonzero = squared_length > 0
+    return jnp.where(nonzero, length * jax.lax.rsqrt(jnp.where(nonzero, squared_length, 1.0)), 0.0)
+
+
 class AbstractFactor(eqx.Module):
     """The global step, precomputed for one set of weights.
 
@@ -124,9 +133,7 @@ class AbstractFactor(eqx.Module):
     def local_targets(self, columns: Float[Array, "2 n"]) -> Complex[Array, " m"]:
         """`[delta(V); e(V)]`: each Laplacian and edge vector turned to its rest length."""
         y = jnp.sum(self.coef * jax.lax.complex(columns[0], columns[1])[self.rows], axis=1)
-        sq = jnp.real(y) ** 2 + jnp.imag(y) ** 2
-        nonzero = sq > 0
-        return y * jnp.where(nonzero, self.length * jax.lax.rsqrt(jnp.where(nonzero, sq, 1.0)), 0.0)
+        return y * length_scale(jnp.real(y) ** 2 + jnp.imag(y) ** 2, self.length)
 
     @abc.abstractmethod
     def handle_part(self, targets: Float[Array, "h 2"]) -> Float[Array, "2 n"]:

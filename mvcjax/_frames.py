@@ -10,7 +10,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Float
 
-from ._factor import DenseFactor
+from ._factor import DenseFactor, length_scale
 from ._rig import Rig
 from ._solvers import AbstractSolver, FixedG
 
@@ -44,10 +44,7 @@ def _fixed_g_frames_last(rig: Rig, targets, solver: FixedG):
 
     def step(_, xy):
         x, y = local(xy[:, 0]), local(xy[:, 1])
-        sq = x * x + y * y
-        nonzero = sq > 0
-        scale = jnp.where(nonzero, factor.length[:, None] * jax.lax.rsqrt(jnp.where(nonzero, sq, 1.0)),
-                          0.0)
+        scale = length_scale(x * x + y * y, factor.length[:, None])
         return jnp.einsum("mn,mdf->ndf", factor.shape,
                           jnp.stack([x * scale, y * scale], axis=1)) + handle_part
 

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Complex, Float, Int
 
 from .._energy import Energy, total_energy
-from .._factor import _local_rows
+from .._factor import _local_rows, length_scale
 from ._base import SolveInfo
 
 _JACOBIAN_LIMIT_BYTES = 2**30
@@ -104,9 +104,7 @@ class ScaledProblem(eqx.Module):
         # Every row's coefficients sum to zero (Laplacian, edge and mean value rows) or
         # one (handles, measured from the scaled targets), so the centring drops out.
         v = jnp.sum(self.coef * z[self.rows], axis=1) - self.offset
-        sq = jnp.real(v) ** 2 + jnp.imag(v) ** 2
-        nonzero = sq > 0
-        turned = v * jnp.where(nonzero, self.length * jax.lax.rsqrt(jnp.where(nonzero, sq, 1.0)), 0.0)
+        turned = v * length_scale(jnp.real(v) ** 2 + jnp.imag(v) ** 2, self.length)
         mvc = jnp.sum(self.mvc_coef * z[self.mvc_rows], axis=1)
         r = jnp.concatenate([self.row_weight * (v - turned), mvc])
         return jnp.stack([jnp.real(r), jnp.imag(r)])
@@ -118,8 +116,7 @@ class ScaledProblem(eqx.Module):
     def energy_of_columns(self, columns: Float[Array, "2 n"]) -> Float[Array, ""]:
         """The energy (6) at the unscaled coordinate rows `V^T`, from `residuals`: the
         cheaper form, for comparisons inside an iteration."""
-        y = (columns - self.energy.rest.mean(axis=0)[:, None]) / self.energy.scale
-        r = self.residuals(y)
+        r = self.residuals(self.scaled(columns.T))
         return jnp.sum(r * r) * self.energy.scale**2
 
     def result(self, y: Float[Array, "2 n"], converged, iterations

@@ -128,9 +128,10 @@ class GaussNewton(_OptimistixLeastSquares):
 
     Each step solves the Gauss-Newton least-squares problem of the Jacobian
     `A - db/dV` (by default matrix-free, see `linear_solver`). The full step is taken
-    when it lowers the energy enough and is shortened by backtracking (Armijo) when it does not: the energy (6) has large
-    residuals where the length-only targets `delta` and `e` are far from met, and there
-    plain Gauss-Newton (`optimistix.GaussNewton`, `line_search=False`) can wander.
+    when it lowers the energy enough and is shortened by backtracking (Armijo) when it
+    does not: the energy (6) has large residuals where the length-only targets `delta`
+    and `e` are far from met, and there plain Gauss-Newton (`optimistix.GaussNewton`,
+    `line_search=False`) can wander.
     Gradients through the solve are implicit (optimistix's `ImplicitAdjoint`).
 
     Attributes:
