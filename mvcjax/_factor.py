@@ -153,6 +153,11 @@ class AbstractFactor(eqx.Module):
         least-squares solvers' preconditioner."""
 
     @abc.abstractmethod
+    def multiply_normal(self, columns: Float[Array, "2 n"]) -> Float[Array, "2 n"]:
+        """`N columns` (coordinate rows, as `step`): the least-squares solvers' structured
+        Gauss-Newton matrix is `N` less the rotation terms."""
+
+    @abc.abstractmethod
     def rebuild(self, energy: Energy) -> AbstractFactor:
         """The same kind of factor for the energy's (new) weights."""
 
@@ -166,12 +171,14 @@ class DenseFactor(AbstractFactor):
         shape: `(m, n)` the columns of `G` acting on `delta` and `e`, transposed
             (`G_shape^T`, for the coordinate-major product).
         handle: `(n, h)` the columns acting on the handle targets.
+        normal: `(n, n)` the normal matrix `N = A^T W A`.
         normal_inverse: `(n, n)` `N^{-1}`, where `G = N^{-1} A^T W`.
         rows, coef, length: the local step's rows (see `AbstractFactor`).
     """
 
     shape: Float[Array, "m n"]
     handle: Float[Array, "n h"]
+    normal: Float[Array, "n n"]
     normal_inverse: Float[Array, "n n"]
     rows: Int[Array, "m 3"]
     coef: Float[Array, "m 3"]
@@ -186,6 +193,9 @@ class DenseFactor(AbstractFactor):
 
     def solve_normal(self, rhs):
         return rhs @ self.normal_inverse  # N^{-1} is symmetric
+
+    def multiply_normal(self, columns):
+        return columns @ self.normal
 
     def rebuild(self, energy):
         return dense_factor(energy)
@@ -206,7 +216,7 @@ def dense_factor(energy: Energy) -> DenseFactor:
     split = lap.shape[0] + length.shape[0]
     rows, coef, rest_length = _local_rows(energy)
     return DenseFactor(
-        shape=g[:, :split].T, handle=g[:, split:],
+        shape=g[:, :split].T, handle=g[:, split:], normal=normal,
         normal_inverse=jax.scipy.linalg.cho_solve(cho, jnp.eye(normal.shape[0], dtype=normal.dtype)),
         rows=rows, coef=coef, length=rest_length,
     )
@@ -259,20 +269,18 @@ class SparseFactor(AbstractFactor):
     handle_weight: Float[Array, ""]
     host: _HostSolve = eqx.field(static=True)
 
+    def _multiply(self, x: Float[Array, "n 2"]) -> Float[Array, "n 2"]:
+        return jax.ops.segment_sum(
+            self.normal_values[:, None] * x[self.normal_cols], self.normal_rows, self.host.size
+        )
+
     def _solve(self, rhs: Float[Array, "n 2"]) -> Float[Array, "n 2"]:
-        n = self.host.size
-
-        def matvec(x):
-            return jax.ops.segment_sum(
-                self.normal_values[:, None] * x[self.normal_cols], self.normal_rows, n
-            )
-
         def solve(_, b):
             return jax.pure_callback(
                 self.host, jax.ShapeDtypeStruct(b.shape, b.dtype), b, vmap_method="broadcast_all"
             )
 
-        return jax.lax.custom_linear_solve(matvec, rhs, solve, symmetric=True)
+        return jax.lax.custom_linear_solve(self._multiply, rhs, solve, symmetric=True)
 
     def handle_part(self, targets):
         n = self.host.size
@@ -289,6 +297,9 @@ class SparseFactor(AbstractFactor):
 
     def solve_normal(self, rhs):
         return self._solve(rhs.T).T
+
+    def multiply_normal(self, columns):
+        return self._multiply(columns.T).T
 
     def rebuild(self, energy):
         return sparse_factor(energy)

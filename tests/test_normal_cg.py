@@ -1,4 +1,4 @@
-"""Preconditioned conjugate gradients and the Gauss-Newton linear solve built on them."""
+"""Preconditioned conjugate gradients and the structured Gauss-Newton matrix solved by them."""
 
 import equinox as eqx
 import jax
@@ -9,7 +9,8 @@ import pytest
 
 import mvcjax
 from mvcjax._solvers import _normal_cg
-from mvcjax._solvers._normal_cg import NormalCG, conjugate_gradient
+from mvcjax._solvers._least_squares import ScaledProblem
+from mvcjax._solvers._normal_cg import GaussNewtonMatrix, conjugate_gradient
 
 from conftest import drag
 
@@ -20,7 +21,7 @@ def test_conjugate_gradient_solves_a_positive_definite_system():
     matrix = jnp.asarray(a @ a.T + 0.1 * np.eye(30))
     b = jnp.asarray(rng.normal(size=(30, 2)))
     jacobi = 1.0 / jnp.diag(matrix)
-    x, steps = conjugate_gradient(lambda v: matrix @ v, b, lambda r: jacobi[:, None] * r,
+    x, steps = conjugate_gradient(lambda v, _: matrix @ v, b, lambda r: jacobi[:, None] * r,
                                   rtol=1e-12, max_steps=500)
     np.testing.assert_allclose(x, np.linalg.solve(matrix, b), rtol=1e-8, atol=1e-10)
     assert 0 < int(steps) <= 500
@@ -41,7 +42,7 @@ def test_unrolled_and_looped_conjugate_gradients_agree(monkeypatch, case):
     rtol = 1e-2 if case == "stops early" else 0.0
 
     def run():
-        return conjugate_gradient(lambda v: matrix @ v, b, lambda r: r, rtol, 12)
+        return conjugate_gradient(lambda v, _: matrix @ v, b, lambda r: r, rtol, 12)
 
     unrolled = run()
     monkeypatch.setattr(_normal_cg, "UNROLL_STEPS", 0)
@@ -58,37 +59,79 @@ def test_unrolled_and_looped_conjugate_gradients_agree(monkeypatch, case):
 
 
 def test_conjugate_gradient_zero_right_hand_side_gives_zero_not_nan():
-    x, steps = conjugate_gradient(lambda v: 2 * v, jnp.zeros((4, 2)), lambda r: r, 1e-8, 10)
+    x, steps = conjugate_gradient(lambda v, _: 2 * v, jnp.zeros((4, 2)), lambda r: r, 1e-8, 10)
     assert np.all(np.asarray(x) == 0) and int(steps) == 0
 
 
 def test_conjugate_gradient_stops_on_zero_curvature():
     # A singular direction: the iteration stops instead of dividing by zero.
     matrix = jnp.diag(jnp.array([1.0, 0.0]))
-    x, _ = conjugate_gradient(lambda v: matrix @ v, jnp.array([0.0, 1.0]), lambda r: r, 1e-8, 10)
+    x, _ = conjugate_gradient(lambda v, _: matrix @ v, jnp.array([0.0, 1.0]), lambda r: r, 1e-8, 10)
     assert np.all(np.isfinite(np.asarray(x)))
 
 
-def test_normal_cg_matches_the_dense_least_squares_step(horse_rig):
-    # The Gauss-Newton step of the energy at a dragged start: CG run to a tight tolerance
-    # gives the dense least-squares solution; its first iterate is along the fixed-G step.
-    targets = drag(horse_rig, np.array([[60.0, 0.0]] + [[0.0, 0.0]] * 4))
-    start = horse_rig.start(targets).T  # coordinate rows, the factor's layout
+def test_conjugate_gradient_hands_the_operator_the_unpreconditioned_direction():
+    # An operator N - C with preconditioner N^{-1}: given N p for free, it never forms N p.
+    rng = np.random.default_rng(2)
+    a = rng.normal(size=(30, 30))
+    normal = jnp.asarray(a @ a.T + 30 * np.eye(30))
+    c = 0.5 * rng.normal(size=(30, 5))  # C below 30 I: N - C stays positive definite
+    correction = jnp.asarray(c @ c.T)
+    b = jnp.asarray(rng.normal(size=(30,)))
+    normal_inverse = jnp.linalg.inv(normal)
+    x, _ = conjugate_gradient(lambda p, normal_p: normal_p - correction @ p, b,
+                              lambda r: normal_inverse @ r, rtol=1e-13, max_steps=200)
+    np.testing.assert_allclose(x, np.linalg.solve(normal - correction, b), rtol=1e-7)
 
-    def residual(columns):
-        return mvcjax.residuals(horse_rig.energy, columns.T, targets)
 
-    r, linear = jax.linearize(residual, start)
-    operator = lx.FunctionLinearOperator(linear, jax.eval_shape(lambda: start))
-    tight = NormalCG(horse_rig.factor, rtol=1e-13, max_steps=2000)
-    step = lx.linear_solve(operator, r, tight).value
-    dense = jax.jacfwd(residual)(start).reshape(r.size, -1)
-    expected = np.linalg.lstsq(dense, r, rcond=None)[0].reshape(start.shape)
-    np.testing.assert_allclose(step, expected, rtol=1e-7, atol=1e-7 * float(jnp.abs(expected).max()))
+@pytest.fixture(scope="module")
+def gauss_newton(horse_rig):
+    # The structured matrix at a dragged, perturbed point, and the residuals' own
+    # linearisation there (jax.linearize and its transpose), the reference.
+    targets = drag(horse_rig, np.array([[60.0, -10.0]] + [[0.0, 0.0]] * 4))
+    weights = mvcjax.Weights(laplacian=2.0, mvc=0.5, length=3.0, handle=40.0)
+    rig = horse_rig.with_weights(weights)
+    problem = ScaledProblem(rig.energy, targets)
+    start = rig.start(targets)
+    y = problem.scaled(start + 0.5 * jax.random.normal(jax.random.key(3), start.shape))
+    r, linear = jax.linearize(problem.residuals, y)
+    return rig, problem, y, r, linear, GaussNewtonMatrix.at(problem, rig.factor, y)
 
-    one = lx.linear_solve(operator, r, NormalCG(horse_rig.factor, rtol=0.0, max_steps=1)).value
-    fixed_g = start - horse_rig.factor.step(start, horse_rig.factor.handle_part(targets))
-    cosine = jnp.sum(one * fixed_g) / (jnp.linalg.norm(one) * jnp.linalg.norm(fixed_g))
+
+def test_gauss_newton_gradient_is_the_residuals_transposed(gauss_newton):
+    _, problem, y, r, linear, matrix = gauss_newton
+    (expected,) = jax.linear_transpose(linear, y)(r)
+    np.testing.assert_allclose(matrix.gradient, expected, rtol=1e-9,
+                               atol=1e-11 * float(jnp.abs(expected).max()))
+
+
+def test_gauss_newton_matrix_is_the_jacobian_squared(gauss_newton):
+    rig, problem, y, _, linear, matrix = gauss_newton
+    x = jax.random.normal(jax.random.key(4), y.shape, y.dtype)
+    (expected,) = jax.linear_transpose(linear, y)(linear(x))
+    product = rig.factor.multiply_normal(x) - matrix.correction(x)
+    np.testing.assert_allclose(product, expected, rtol=1e-9,
+                               atol=1e-11 * float(jnp.abs(expected).max()))
+    assert float(matrix.quadratic(x)) == pytest.approx(float(jnp.sum(linear(x) ** 2)), rel=1e-10)
+
+
+@pytest.mark.parametrize("damping", [0.0, 0.3])
+def test_gauss_newton_solve_matches_the_dense_step(gauss_newton, damping):
+    # Run to a tight tolerance, CG gives the dense (damped) least-squares step; its
+    # first iterate is along the fixed-G step (N^{-1} J^T r = y - fixed-G step from y).
+    rig, problem, y, r, _, matrix = gauss_newton
+    dense = jax.jacfwd(problem.residuals)(y).reshape(r.size, -1)
+    hessian = dense.T @ dense + damping * jnp.eye(dense.shape[1])
+    expected = jnp.linalg.solve(hessian, dense.T @ r.reshape(-1)).reshape(y.shape)
+    x, result = matrix.solve(rtol=1e-13, max_steps=2000, damping=damping)
+    assert result == lx.RESULTS.successful
+    np.testing.assert_allclose(x, expected, rtol=1e-7, atol=1e-7 * float(jnp.abs(expected).max()))
+
+    one, _ = matrix.solve(rtol=0.0, max_steps=1, damping=damping)
+    columns = problem.unscaled(y).T
+    fixed_g = problem.scaled(rig.factor.step(columns, rig.factor.handle_part(problem.targets)).T)
+    along = y - fixed_g
+    cosine = jnp.sum(one * along) / (jnp.linalg.norm(one) * jnp.linalg.norm(along))
     assert float(cosine) == pytest.approx(1.0, abs=1e-10)
 
 
@@ -101,15 +144,10 @@ def test_structured_step_options_are_checked():
         mvcjax.GaussNewton(cg_rtol=1.0)
 
 
-def test_normal_cg_reports_a_step_it_could_not_take(horse_rig):
+def test_gauss_newton_solve_reports_a_step_it_could_not_take(gauss_newton):
     # With a preconditioner that is not positive definite CG cannot leave zero: a
     # breakdown, not a zero step that the outer solver would take for convergence.
-    targets = drag(horse_rig, np.array([[60.0, 0.0]] + [[0.0, 0.0]] * 4))
-    start = horse_rig.start(targets).T
-    r, linear = jax.linearize(lambda c: mvcjax.residuals(horse_rig.energy, c.T, targets), start)
-    operator = lx.FunctionLinearOperator(linear, jax.eval_shape(lambda: start))
-    factor = horse_rig.factor
-    negated = eqx.tree_at(lambda f: f.normal_inverse, factor, -factor.normal_inverse)
-    solution = lx.linear_solve(operator, r, NormalCG(negated, rtol=1e-3, max_steps=5),
-                               throw=False)
-    assert solution.result == lx.RESULTS.breakdown
+    rig, problem, y, *_ = gauss_newton
+    negated = eqx.tree_at(lambda f: f.normal_inverse, rig.factor, -rig.factor.normal_inverse)
+    _, result = GaussNewtonMatrix.at(problem, negated, y).solve(rtol=1e-3, max_steps=5)
+    assert result == lx.RESULTS.breakdown

@@ -98,12 +98,23 @@ class ScaledProblem(eqx.Module):
     def unscaled(self, y: Float[Array, "2 n"]) -> Float[Array, "n 2"]:
         return y.T * self.energy.scale + self.energy.rest.mean(axis=0)
 
+    def stencils(self, y: Float[Array, "2 n"]) -> Complex[Array, " m"]:
+        """`D y`: the Laplacian, edge and handle stencils applied to `y` (offsets not
+        subtracted), as complex numbers."""
+        return jnp.sum(self.coef * jax.lax.complex(y[0], y[1])[self.rows], axis=1)
+
+    def stencils_transpose(self, u: Complex[Array, " m"]) -> Float[Array, "2 n"]:
+        """`D^T u`: the transpose of `stencils`."""
+        z = jnp.zeros(self.energy.num_vertices, u.dtype).at[self.rows.reshape(-1)].add(
+            (self.coef * u[:, None]).reshape(-1))
+        return jnp.stack([jnp.real(z), jnp.imag(z)])
+
     def residuals(self, y: Float[Array, "2 n"]) -> Float[Array, "2 r"]:
         """All residuals, weighted and scaled, as real and imaginary rows."""
         z = jax.lax.complex(y[0], y[1])
         # Every row's coefficients sum to zero (Laplacian, edge and mean value rows) or
         # one (handles, measured from the scaled targets), so the centring drops out.
-        v = jnp.sum(self.coef * z[self.rows], axis=1) - self.offset
+        v = self.stencils(y) - self.offset
         turned = v * length_scale(jnp.real(v) ** 2 + jnp.imag(v) ** 2, self.length)
         mvc = jnp.sum(self.mvc_coef * z[self.mvc_rows], axis=1)
         r = jnp.concatenate([self.row_weight * (v - turned), mvc])

@@ -1,19 +1,28 @@
 """The Gauss-Newton linear solve with the energy's structure: conjugate gradients on the
-normal equations, preconditioned by the rig's constant normal matrix.
+Gauss-Newton matrix, kept as the rig's constant normal matrix less the rotation terms,
+preconditioned by that constant matrix.
 
-The residuals of the energy (6) are `W^{1/2} (A V - b(V))`, so their Jacobian is
-`W^{1/2} (A - db/dV)` with `A` constant and sparse. Optimistix hands the linear solver
-that Jacobian as a matrix-free operator (`jax.linearize` of the residuals: a product
-costs about one local step). The normal matrix `J^T J` is `N = A^T W A` (the fixed-G
-iteration's matrix, factored once when the rig was built) less the rotation
-terms' `sum_r c_r Y_r^T P_r Y_r` (`P_r` the projection across Laplacian or edge
-vector `r`),
-so `N^{-1}` is the natural preconditioner: nothing is materialised, and each
-conjugate-gradient iteration costs one product with `J`, one with `J^T` and one with
-`N^{-1}`, about one fixed-G step in all. The rotations leave `J^T J` soft where `N` is
-stiff, so the iteration still needs several steps: 8 by default. Its first iterate points along the fixed-G step (at any `V`,
-`J^T r = A^T W r`, since each rotation term's derivative is orthogonal to its
-residual), and later ones improve on it within the Gauss-Newton model.
+The residuals of the energy (6) are `W^{1/2} (A V - b(V))`. Stencil row `r` (a Laplacian,
+edge or handle row `D_r`) has residual `W_r^{1/2} (1 - c_r) v_r`, where `v_r = D_r V`
+and `c_r = l_r / |v_r|` turns it to its rest length `l_r`; the mean value rows are
+linear. Differentiating, `J_r = W_r^{1/2} (I - c_r P_r) D_r` with `P_r` the projection
+across `v_r`, and since `(I - c P)^2 = I - c (2 - c) P`:
+
+    J^T J = N - sum_r W_r c_r (2 - c_r) D_r^T P_r D_r,     N = A^T W A,
+
+and `J^T r = N V - D^T W (c v + offset)`. `N` is what the fixed-G iteration factors once
+(`AbstractFactor.solve_normal`), so `N^{-1}` preconditions the solve. Each
+conjugate-gradient iteration then costs one stencil gather and its scatter (the rotation
+terms) and one product with `N^{-1}`: the product with `N` itself is never formed, since
+the iteration carries it along (`conjugate_gradient`). The mean value rows, constant,
+live in `N` and cost nothing per iteration. Going through optimistix's matrix-free
+Jacobian instead (`jax.linearize` of the residuals, and its transpose) costs about twice
+as much per iteration.
+
+The rotations leave `J^T J` soft where `N` is stiff, so the iteration still needs several
+steps: 8 by default. Its first iterate points along the fixed-G step (`N^{-1} J^T r` is
+`V` less the fixed-G step from `V`), and later ones improve on it within the
+Gauss-Newton model.
 
 Gradients through a solve need the Hessian of the energy at the solution instead:
 `HessianCG` solves with it by the same preconditioned conjugate gradients, so that the
@@ -28,9 +37,10 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import lineax as lx
+from jaxtyping import Array, Complex, Float
 
-from .._factor import AbstractFactor
-from ._least_squares import default_tol
+from .._factor import AbstractFactor, length_scale
+from ._least_squares import ScaledProblem, default_tol
 
 
 def _dot(a, b):
@@ -41,12 +51,18 @@ UNROLL_STEPS = 16
 
 
 def conjugate_gradient(matvec, b, precondition, rtol: float, max_steps: int):
-    """Preconditioned conjugate gradients for `matvec(x) = b` from `x = 0`.
+    """Preconditioned conjugate gradients for `A x = b` from `x = 0`.
 
-    `matvec` must be symmetric positive semidefinite and `precondition` symmetric
-    positive definite (pytrees of arrays in, the same out). Stops after `max_steps` or
-    when the preconditioned residual norm has fallen by `rtol`; a direction of zero or
-    negative curvature ends the iteration instead of dividing by it. Budgets of at most
+    `matvec(p, q)` returns `A p`, given beside each direction `p` the product
+    `q = P^{-1} p` with the inverse of the preconditioner `P` (`precondition`), which
+    the iteration carries along for free (`P^{-1}` of the preconditioned residual is the
+    residual): an operator of the form `P^{-1} - C` then costs only its correction `C`.
+    Other operators ignore `q`.
+
+    `A` must be symmetric positive semidefinite and `P` symmetric positive definite
+    (pytrees of arrays in, the same out). Stops after `max_steps` or when the
+    preconditioned residual norm has fallen by `rtol`; a direction of zero or negative
+    curvature ends the iteration instead of dividing by it. Budgets of at most
     `UNROLL_STEPS` iterations (a truncated Newton step) run unrolled, the stopping test
     a mask: on the CPU that saves about a third of a Gauss-Newton step's fixed cost.
 
@@ -58,12 +74,12 @@ def conjugate_gradient(matvec, b, precondition, rtol: float, max_steps: int):
     stop = (rtol**2) * gamma0
 
     def cond(carry):
-        k, _, _, _, gamma = carry
+        k, _, _, _, _, gamma = carry
         return (k < max_steps) & (gamma > stop)
 
     def body(carry):
-        k, x, residual, direction, gamma = carry
-        q = matvec(direction)
+        k, x, residual, direction, unpreconditioned, gamma = carry
+        q = matvec(direction, unpreconditioned)
         curvature = _dot(direction, q)
         ok = curvature > 0
         alpha = jnp.where(ok, gamma / jnp.where(ok, curvature, 1), 0)
@@ -73,10 +89,12 @@ def conjugate_gradient(matvec, b, precondition, rtol: float, max_steps: int):
         gamma_next = _dot(residual, z)
         beta = gamma_next / jnp.where(gamma > 0, gamma, 1)
         direction = jax.tree.map(lambda zi, di: zi + beta * di, z, direction)
-        return k + 1, x, residual, direction, jnp.where(ok, gamma_next, 0)
+        unpreconditioned = jax.tree.map(lambda ri, ui: ri + beta * ui, residual,
+                                        unpreconditioned)
+        return k + 1, x, residual, direction, unpreconditioned, jnp.where(ok, gamma_next, 0)
 
     zero = jax.tree.map(jnp.zeros_like, b)
-    carry = (jnp.zeros((), jnp.int32), zero, b, z, gamma0)
+    carry = (jnp.zeros((), jnp.int32), zero, b, z, b, gamma0)
     if max_steps <= UNROLL_STEPS:
         # A few iterations (a truncated Newton step): unrolled, with the stopping test
         # as a mask, so that XLA fuses across iterations instead of running a loop.
@@ -94,57 +112,76 @@ def hessian_solve(matvec, b, precondition):
     a strict minimum), by conjugate gradients preconditioned by `precondition` (the
     factor's `N^{-1}`), to the least-squares solvers' tolerance. Used by implicit
     differentiation; a direction of non-positive curvature (not a minimum) ends it early."""
-    return conjugate_gradient(matvec, b, precondition, default_tol(b.dtype), 4 * b.size)[0]
+    return conjugate_gradient(lambda p, _: matvec(p), b, precondition,
+                              default_tol(b.dtype), 4 * b.size)[0]
 
 
-class NormalCG(lx.AbstractLinearSolver):
-    """Least squares `min |J x - r|` by preconditioned conjugate gradients on
-    `J^T J x = J^T r`, with `N^{-1}` from the rig's factor as the preconditioner.
-
-    A truncated (inexact) Newton solve: it stops after `max_steps` iterations or when
-    the preconditioned residual has fallen by `rtol`. It reports success whenever it
-    moved (any iterate is a descent direction, which the outer solver's line search or
-    trust region then judges) and a breakdown when it could not leave zero with a
-    nonzero gradient, so that a solver never takes a zero step for convergence.
+class GaussNewtonMatrix(eqx.Module):
+    """The Gauss-Newton matrix `J^T J` of a `ScaledProblem`'s residuals at one point,
+    and the gradient there, in the structured form of the module docstring.
 
     Attributes:
-        factor: the rig's factor (its `solve_normal` is the preconditioner).
-        rtol: relative decrease of the preconditioned residual norm at which to stop.
-        max_steps: the most conjugate-gradient iterations per linear solve.
+        problem: the scaled residuals.
+        factor: the rig's factor (`N` and `N^{-1}`).
+        turn: `(m,)` for each stencil row, the unit vector across its current vector
+            (as a complex number; zero for a zero vector).
+        softness: `(m,)` `W_r c_r (2 - c_r)`, what the rotation takes off each row's
+            weight across it (zero for the handle rows, which have no rest length).
+        gradient: `(2, n)` `J^T r`, half the gradient of the scaled energy.
     """
 
+    problem: ScaledProblem
     factor: AbstractFactor
-    rtol: float = eqx.field(static=True)
-    max_steps: int = eqx.field(static=True)
+    turn: Complex[Array, " m"]
+    softness: Float[Array, " m"]
+    gradient: Float[Array, "2 n"]
 
-    def init(self, operator: lx.AbstractLinearOperator, options: dict[str, Any]):
-        del options
-        return operator
+    @classmethod
+    def at(cls, problem: ScaledProblem, factor: AbstractFactor, y: Float[Array, "2 n"]
+           ) -> GaussNewtonMatrix:
+        """The matrix and the gradient at `y`."""
+        v = problem.stencils(y) - problem.offset
+        squared = jnp.real(v) ** 2 + jnp.imag(v) ** 2
+        c = length_scale(squared, problem.length)
+        weight = problem.row_weight**2
+        gradient = factor.multiply_normal(y) - problem.stencils_transpose(
+            weight * (c * v + problem.offset))
+        return cls(problem, factor, turn=1j * v * length_scale(squared, jnp.ones_like(squared)),
+                   softness=weight * c * (2 - c), gradient=gradient)
 
-    def compute(self, state, vector, options):
-        del options
-        operator = state
-        transposed = operator.transpose()
-        gradient = transposed.mv(vector)
-        x, steps = conjugate_gradient(
-            lambda x: transposed.mv(operator.mv(x)), gradient,
-            self.factor.solve_normal, self.rtol, self.max_steps,
-        )
-        stuck = (_dot(x, x) == 0) & (_dot(gradient, gradient) > 0)
-        result = lx.RESULTS.where(stuck, lx.RESULTS.breakdown, lx.RESULTS.successful)
-        return x, result, {"num_steps": steps}
+    def at_point(self) -> tuple[Array, Array, Array]:
+        """What depends on the point (`turn`, `softness`, `gradient`): what a descent
+        carries from step to step, instead of the problem and the factor again."""
+        return self.turn, self.softness, self.gradient
 
-    def transpose(self, state, options):
-        raise NotImplementedError(
-            "NormalCG solves the forward Gauss-Newton steps only; gradients through a "
-            "solve are implicit and use another linear solver."
-        )
+    def correction(self, x: Float[Array, "2 n"]) -> Float[Array, "2 n"]:
+        """`N x - J^T J x`: the rotation terms."""
+        across = jnp.real(jnp.conj(self.turn) * self.problem.stencils(x))
+        return self.problem.stencils_transpose(self.softness * across * self.turn)
 
-    def conj(self, state, options):
-        return state, options
+    def quadratic(self, x: Float[Array, "2 n"]) -> Float[Array, ""]:
+        """`|J x|^2`."""
+        across = jnp.real(jnp.conj(self.turn) * self.problem.stencils(x))
+        return jnp.sum(x * self.factor.multiply_normal(x)) - jnp.sum(self.softness * across**2)
 
-    def assume_full_rank(self):
-        return True
+    def solve(self, rtol: float, max_steps: int, damping=0.0):
+        """`(J^T J + damping I)^{-1} J^T r` by conjugate gradients preconditioned by
+        `N^{-1}`, truncated after `max_steps` iterations or a relative decrease `rtol`.
+
+        Returns:
+            `(x, result)`: a breakdown when it could not leave zero with a nonzero
+            gradient (any iterate that moved is a descent direction, which the outer
+            solver's line search or trust region then judges), so that a solver never
+            takes a zero step for convergence.
+        """
+        def matvec(p, normal_p):
+            return normal_p - self.correction(p) + damping * p
+
+        x, _ = conjugate_gradient(matvec, self.gradient, self.factor.solve_normal,
+                                  rtol, max_steps)
+        g = self.gradient
+        stuck = (_dot(x, x) == 0) & (_dot(g, g) > 0)
+        return x, lx.RESULTS.where(stuck, lx.RESULTS.breakdown, lx.RESULTS.successful)
 
 
 class HessianCG(lx.AbstractLinearSolver):

@@ -12,10 +12,16 @@ import lineax as lx
 import optimistix as optx
 
 from ._base import AbstractSolver, check_steps
+from ._descents import (
+    StructuredDampedNewtonDescent,
+    StructuredDoglegDescent,
+    StructuredNewtonDescent,
+)
 from ._least_squares import ScaledProblem, check_jacobian_fits, default_tol
-from ._normal_cg import HessianCG, NormalCG
+from ._normal_cg import HessianCG
 
 LINEAR_SOLVERS = ("cg", "cholesky")
+_CHOLESKY = lx.Normal(lx.Cholesky())
 
 
 class _OptimistixLeastSquares(AbstractSolver):
@@ -26,9 +32,10 @@ class _OptimistixLeastSquares(AbstractSolver):
             bounding-box diagonal (default 1e-10 in float64, 1e-5 in float32).
         max_steps: the step budget; `converged` is false if it ran out.
         linear_solver: how each step's linear least-squares problem is solved.
-            `"cg"` (default) uses the structure: conjugate gradients on the normal
-            equations of the matrix-free Jacobian, preconditioned by the rig's
-            constant normal matrix (see `NormalCG`). `"cholesky"` materialises the
+            `"cg"` (default) uses the structure: conjugate gradients on the
+            Gauss-Newton matrix kept as the rig's constant normal matrix less the
+            rotation terms, preconditioned by that constant matrix (see
+            `GaussNewtonMatrix`, and the structured descents). `"cholesky"` materialises the
             Jacobian by forward-mode autodiff and factors its normal matrix: exact
             steps, 20 to 40 times slower on the horse, refused above 1 GiB.
         cg_steps, cg_rtol: the conjugate-gradient budget per step and its relative
@@ -55,27 +62,32 @@ class _OptimistixLeastSquares(AbstractSolver):
                 f"{type(self).__name__}(cg_rtol={self.cg_rtol}): a relative decrease, in [0, 1)."
             )
 
-    def _solver(self, rtol: float, atol: float, linear_solver: lx.AbstractLinearSolver):
+    def _parts(self, structured: optx.AbstractDescent | None
+               ) -> tuple[optx.AbstractDescent, optx.AbstractSearch]:
+        """The descent and the search: `structured` is the `"cg"` descent, `None` asks
+        for optimistix's own with the dense linear solver."""
         raise NotImplementedError
 
-    def _linear_solver(self, factor) -> lx.AbstractLinearSolver:
-        if self.linear_solver == "cg":
-            return NormalCG(factor, rtol=self.cg_rtol, max_steps=self.cg_steps)
-        return lx.Normal(lx.Cholesky())
-
-    def _configured(self, energy, factor, dtype):
+    def _configured(self, problem: ScaledProblem, factor, dtype):
         if self.linear_solver == "cholesky":
-            check_jacobian_fits(energy, dtype, f"{type(self).__name__}(linear_solver='cholesky')",
+            check_jacobian_fits(problem.energy, dtype,
+                                f"{type(self).__name__}(linear_solver='cholesky')",
                                 f"the default {type(self).__name__}(linear_solver='cg') or ")
-        rtol = default_tol(dtype) if self.rtol is None else self.rtol
-        atol = default_tol(dtype) if self.atol is None else self.atol
-        return self._solver(rtol, atol, self._linear_solver(factor))
+        structured = None
+        if self.linear_solver == "cg":
+            structured = (problem, factor, self.cg_steps, self.cg_rtol)
+        descent, search = self._parts(structured)
+        return _GaussNewtonFamily(
+            rtol=default_tol(dtype) if self.rtol is None else self.rtol,
+            atol=default_tol(dtype) if self.atol is None else self.atol,
+            descent=descent, search=search,
+        )
 
     def solve(self, energy, factor, targets, init):
         problem = ScaledProblem(energy, targets)
         sol = optx.least_squares(
             lambda y, args: problem.residuals(y),
-            self._configured(energy, factor, init.dtype),
+            self._configured(problem, factor, init.dtype),
             problem.scaled(init),
             # Implicit gradients by CG on the Hessian: optimistix's default would form it
             # densely (13 GB in float64 for a 20k-vertex full solve).
@@ -90,8 +102,8 @@ class _OptimistixLeastSquares(AbstractSolver):
         return dataclasses.replace(self, max_steps=check_steps(self, steps), rtol=0.0, atol=0.0)
 
     def history(self, energy, factor, targets, init, steps):
-        solver = self._configured(energy, factor, init.dtype)
         problem = ScaledProblem(energy, targets)
+        solver = self._configured(problem, factor, init.dtype)
 
         def fn(y, args):
             return problem.residuals(y), None
@@ -112,14 +124,15 @@ class _OptimistixLeastSquares(AbstractSolver):
         return jnp.concatenate([problem.energy_at(y0)[None], energies])
 
 
-class _DampedGaussNewton(optx.AbstractGaussNewton):
-    """Gauss-Newton steps with a backtracking Armijo line search."""
+class _GaussNewtonFamily(optx.AbstractGaussNewton):
+    """Optimistix's Gauss-Newton loop with any descent and search: `optimistix.GaussNewton`,
+    `LevenbergMarquardt` and `Dogleg` are this loop with theirs."""
 
     rtol: float
     atol: float
     descent: optx.AbstractDescent
+    search: optx.AbstractSearch
     norm: Callable = optx.max_norm
-    search: optx.AbstractSearch = optx.BacktrackingArmijo()
     verbose: Callable[..., None] = lambda *args, **kwargs: None
 
 
@@ -143,11 +156,11 @@ class GaussNewton(_OptimistixLeastSquares):
 
     line_search: bool = eqx.field(default=True, static=True)
 
-    def _solver(self, rtol, atol, linear_solver):
-        if self.line_search:
-            return _DampedGaussNewton(rtol=rtol, atol=atol,
-                                      descent=optx.NewtonDescent(linear_solver=linear_solver))
-        return optx.GaussNewton(rtol=rtol, atol=atol, linear_solver=linear_solver)
+    def _parts(self, structured):
+        search = optx.BacktrackingArmijo() if self.line_search else optx.LearningRate(1.0)
+        if structured is None:
+            return optx.NewtonDescent(linear_solver=_CHOLESKY), search
+        return StructuredNewtonDescent(*structured), search
 
 
 class LevenbergMarquardt(_OptimistixLeastSquares):
@@ -158,8 +171,10 @@ class LevenbergMarquardt(_OptimistixLeastSquares):
     by `N^{-1}` alone, which suits the small damping near a solution.
     """
 
-    def _solver(self, rtol, atol, linear_solver):
-        return optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=linear_solver)
+    def _parts(self, structured):
+        if structured is None:
+            return optx.DampedNewtonDescent(linear_solver=_CHOLESKY), optx.ClassicalTrustRegion()
+        return StructuredDampedNewtonDescent(*structured), optx.ClassicalTrustRegion()
 
 
 class Dogleg(_OptimistixLeastSquares):
@@ -169,5 +184,7 @@ class Dogleg(_OptimistixLeastSquares):
     solver chosen, tolerances on coordinates scaled to the unit diagonal.
     """
 
-    def _solver(self, rtol, atol, linear_solver):
-        return optx.Dogleg(rtol=rtol, atol=atol, linear_solver=linear_solver)
+    def _parts(self, structured):
+        if structured is None:
+            return optx.DoglegDescent(linear_solver=_CHOLESKY), optx.ClassicalTrustRegion()
+        return StructuredDoglegDescent(*structured), optx.ClassicalTrustRegion()

@@ -1,0 +1,112 @@
+"""Optimistix descents that solve each step's linear problem with the energy's structure
+(`GaussNewtonMatrix`): Gauss-Newton's, Levenberg-Marquardt's and the dogleg's.
+
+Optimistix hands its descents the Jacobian as a matrix-free operator; these descents use
+the point `y` instead, which optimistix also hands them, to build the Gauss-Newton matrix
+in its structured form. The searches (Armijo backtracking, the classical trust region)
+and the stopping tests stay optimistix's.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+import optimistix as optx
+from jaxtyping import Array, Float
+
+from .._factor import AbstractFactor
+from ._least_squares import ScaledProblem
+from ._normal_cg import GaussNewtonMatrix
+
+
+class _StructuredDescent(optx.AbstractDescent):
+    """What the three descents share: the problem, the factor and the CG budget.
+
+    Attributes:
+        problem: the scaled residuals (optimistix's `fn`, as data).
+        factor: the rig's factor.
+        cg_steps, cg_rtol: the conjugate-gradient budget per linear solve.
+    """
+
+    problem: ScaledProblem
+    factor: AbstractFactor
+    cg_steps: int = eqx.field(static=True)
+    cg_rtol: float = eqx.field(static=True)
+
+    def _matrix(self, y) -> GaussNewtonMatrix:
+        return GaussNewtonMatrix.at(self.problem, self.factor, y)
+
+
+class _NewtonState(eqx.Module):
+    newton: Float[Array, "2 n"]
+    result: optx.RESULTS
+
+
+class StructuredNewtonDescent(_StructuredDescent):
+    """`optimistix.NewtonDescent` for the least-squares residuals, by
+    `GaussNewtonMatrix.solve`."""
+
+    def init(self, y, f_info_struct):
+        del f_info_struct
+        return _NewtonState(y, optx.RESULTS.successful)
+
+    def query(self, y, f_info, state):
+        del f_info, state
+        newton, result = self._matrix(y).solve(self.cg_rtol, self.cg_steps)
+        return _NewtonState(newton, optx.RESULTS.promote(result))
+
+    def step(self, step_size, state):
+        return -step_size * state.newton, state.result
+
+
+class _DampedState(eqx.Module):
+    point: tuple[Array, Array, Array]  # GaussNewtonMatrix.at_point
+
+
+class StructuredDampedNewtonDescent(_StructuredDescent):
+    """`optimistix.DampedNewtonDescent` (Levenberg-Marquardt's): the damping
+    `1 / step_size` is added to the structured Gauss-Newton matrix, still
+    preconditioned by `N^{-1}` (which suits the small damping near a solution)."""
+
+    def init(self, y, f_info_struct):
+        del f_info_struct
+        return _DampedState(self._matrix(y).at_point())
+
+    def query(self, y, f_info, state):
+        del f_info, state
+        return _DampedState(self._matrix(y).at_point())
+
+    def step(self, step_size, state):
+        matrix = GaussNewtonMatrix(self.problem, self.factor, *state.point)
+        # optimistix's damping, 1 / step_size, capped where the step size vanishes.
+        damping = 1 / jnp.maximum(step_size, jnp.finfo(matrix.gradient.dtype).eps)
+        x, result = matrix.solve(self.cg_rtol, self.cg_steps, damping)
+        return -x, optx.RESULTS.promote(result)
+
+
+class StructuredDoglegDescent(_StructuredDescent):
+    """`optimistix.DoglegDescent` with its Newton point by `GaussNewtonMatrix.solve` and
+    its Cauchy point from the structured `|J g|^2`; the step between them is
+    optimistix's."""
+
+    def init(self, y, f_info_struct):
+        return optx.DoglegDescent().init(y, f_info_struct)
+
+    def query(self, y, f_info, state):
+        del f_info
+        matrix = self._matrix(y)
+        grad = matrix.gradient
+        denom = matrix.quadratic(grad)
+        denom_nonzero = denom > jnp.finfo(denom.dtype).eps
+        scaling = jnp.where(denom_nonzero, jnp.sum(grad**2) / jnp.where(denom_nonzero, denom, 1),
+                            0.0)
+        newton, result = matrix.solve(self.cg_rtol, self.cg_steps)
+        cauchy = -scaling * grad
+        return eqx.tree_at(
+            lambda s: (s.newton, s.cauchy, s.newton_norm, s.cauchy_norm, s.result), state,
+            (-newton, cauchy, optx.two_norm(newton), optx.two_norm(cauchy),
+             optx.RESULTS.promote(result)),
+        )
+
+    def step(self, step_size, state):
+        return optx.DoglegDescent().step(step_size, state)
