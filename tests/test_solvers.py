@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import mvcjax
+from mvcjax import datasets
 
 from conftest import directional_derivatives, drag, scipy_minimum
 
@@ -361,3 +362,34 @@ def test_a_solver_without_a_history_says_so(horse_rig):
         horse_rig.energy_history(horse_rig.handle_positions, Plain(), 3)
     with pytest.raises(NotImplementedError, match="fixed number of steps"):
         Plain().fixed_steps(3)
+
+
+
+@pytest.mark.parametrize("solver", [
+    mvcjax.GaussNewton(), mvcjax.Dogleg(), mvcjax.LevenbergMarquardt(),
+    mvcjax.Dogleg(linear_solver="cholesky"),
+], ids=["gauss_newton", "dogleg", "levenberg_marquardt", "dogleg_cholesky"])
+def test_optimistix_solvers_in_float32(horse, horse_rig, solve, solver):
+    # Single precision with jax_enable_x64 on (the suite's setting): optimistix's dogleg
+    # made its norms float64 there and failed; every solver converges to float32's
+    # tolerance near the float64 minimum. Float32 resolves the energy to about 1e-6;
+    # where it is this flat, that leaves the vertices about 1e-3 of the diagonal to move
+    # (plain fixed-G stops 9e-4 away).
+    rig32 = mvcjax.Rig.build(horse, datasets.horse_handles(), dtype=jnp.float32)
+    handle, offset = AGREEING[0]
+    vertices, info = jax.jit(lambda t: rig32.solve(t, solver, return_info=True))(
+        targets_for(rig32, handle, offset))
+    assert vertices.dtype == jnp.float32
+    assert bool(info.converged), int(info.iterations)
+    expected, expected_info = solve("gauss_newton", targets_for(horse_rig, handle, offset))
+    assert np.abs(np.asarray(vertices) - np.asarray(expected)).max() < 2e-3 * horse.diagonal
+    assert float(info.energy) == pytest.approx(float(expected_info.energy), rel=2e-5)
+
+
+def test_structured_solver_over_frames_matches_single_frames(horse_rig):
+    # vmapped (deform_frames): the descents' arrays batch with the targets.
+    solver = mvcjax.GaussNewton()
+    targets = jnp.stack([targets_for(horse_rig, *drag_) for drag_ in AGREEING])
+    together = mvcjax.deform_frames(horse_rig, targets, solver)
+    for k in range(len(AGREEING)):
+        np.testing.assert_allclose(together[k], horse_rig.deform(targets[k], solver), atol=1e-8)

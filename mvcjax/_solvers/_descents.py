@@ -84,13 +84,29 @@ class StructuredDampedNewtonDescent(_StructuredDescent):
         return -x, optx.RESULTS.promote(result)
 
 
+def dogleg_init(y, f_info_struct):
+    """`optimistix.DoglegDescent.init` with its norms in `y`'s dtype: optimistix makes
+    them with `jnp.array(0.0)`, float64 under `jax_enable_x64`, and a float32 solve then
+    fails on the cond between accepted and rejected steps."""
+    state = optx.DoglegDescent().init(y, f_info_struct)
+    zero = jnp.zeros((), y.dtype)
+    return eqx.tree_at(lambda s: (s.newton_norm, s.cauchy_norm), state, (zero, zero))
+
+
+class DoglegDescent(optx.DoglegDescent):
+    """`optimistix.DoglegDescent` with `dogleg_init` (the dense `linear_solver`)."""
+
+    def init(self, y, f_info_struct):
+        return dogleg_init(y, f_info_struct)
+
+
 class StructuredDoglegDescent(_StructuredDescent):
     """`optimistix.DoglegDescent` with its Newton point by `GaussNewtonMatrix.solve` and
     its Cauchy point from the structured `|J g|^2`; the step between them is
     optimistix's."""
 
     def init(self, y, f_info_struct):
-        return optx.DoglegDescent().init(y, f_info_struct)
+        return dogleg_init(y, f_info_struct)
 
     def query(self, y, f_info, state):
         del f_info

@@ -13,6 +13,7 @@ import optimistix as optx
 
 from ._base import AbstractSolver, check_steps
 from ._descents import (
+    DoglegDescent,
     StructuredDampedNewtonDescent,
     StructuredDoglegDescent,
     StructuredNewtonDescent,
@@ -186,5 +187,5 @@ class Dogleg(_OptimistixLeastSquares):
 
     def _parts(self, structured):
         if structured is None:
-            return optx.DoglegDescent(linear_solver=_CHOLESKY), optx.ClassicalTrustRegion()
+            return DoglegDescent(linear_solver=_CHOLESKY), optx.ClassicalTrustRegion()
         return StructuredDoglegDescent(*structured), optx.ClassicalTrustRegion()
