@@ -123,14 +123,25 @@ print("steps to a relative gap of 1e-6:", to_gap)
 # ## Time per step, and energy against time
 # A step of each solver is timed as the benchmark does: a solve of exactly the steps it
 # needed to reach the gap (`solver.fixed_steps(n)`: the same solver, its stopping
-# criteria off), compiled first, median of several calls, divided by the steps.
+# criteria off), compiled first, median of several calls, divided by the steps. The
+# solvers are timed in turns, so that whatever else the machine does weighs on all of
+# them alike and their ratios come from one run.
 
 # %%
-step_ms, time_to_gap = {}, {}
+timed = {}
 for name, (solver, recorded_steps) in recorded.items():
     steps = to_gap[name] or recorded_steps
-    ms = median_ms(jax.jit(lambda t, s=solver.fixed_steps(steps): rig.solve(t, s)), targets,
-                   repeats=5)
+    timed[name] = (jax.jit(lambda t, s=solver.fixed_steps(steps): rig.solve(t, s)), steps)
+    jax.block_until_ready(timed[name][0](targets))  # compile outside the timed region
+times = {name: [] for name in timed}
+for _ in range(7):
+    for name, (solve, _) in timed.items():
+        start = time.perf_counter()
+        jax.block_until_ready(solve(targets))
+        times[name].append(time.perf_counter() - start)
+step_ms, time_to_gap = {}, {}
+for name, (_, steps) in timed.items():
+    ms = 1e3 * float(np.median(times[name]))
     step_ms[name] = ms / steps
     time_to_gap[name] = ms if to_gap[name] is not None else None
 
@@ -159,9 +170,9 @@ fig.suptitle("horse: the energy (6) against step and against time")
 plt.show()
 
 # %% [markdown]
-# The structured Gauss-Newton steps cost 12 to 16 fixed-G steps each (a dense
-# Jacobian with Cholesky costs hundreds, see the table below), and they get to the gap in
-# tens of steps where fixed-G needs thousands. Anderson's steps cost two to three plain
+# The structured Gauss-Newton steps cost 10 to 20 fixed-G steps each, depending on the
+# solver and the run (a dense Jacobian with Cholesky costs hundreds, see the table
+# below), and they get to the gap in tens of steps where fixed-G needs thousands. Anderson's steps cost two to three plain
 # ones, and it needs a twentieth of them.
 #
 # The energy is not convex: from the same start the solvers can settle in different
