@@ -100,13 +100,16 @@ def test_rig_is_a_pytree_and_jits_as_an_argument(horse_rig):
     np.testing.assert_allclose(out, horse_rig.shape_mesh.vertices, atol=1e-9)
 
 
-def test_new_targets_or_weights_never_recompile(horse_rig):
+@pytest.mark.parametrize("solver", [mvcjax.FixedG(), mvcjax.GaussNewton(), mvcjax.Dogleg(),
+                                    mvcjax.LevenbergMarquardt()],
+                         ids=lambda s: type(s).__name__)
+def test_new_targets_or_weights_never_recompile(horse_rig, solver):
     traces = []
 
     @jax.jit
     def deform(rig, targets):
         traces.append(1)
-        return rig.deform(targets)
+        return rig.deform(targets, solver)
 
     deform(horse_rig, horse_rig.handle_positions)
     deform(horse_rig, drag(horse_rig, np.ones((5, 2))))
