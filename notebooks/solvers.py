@@ -172,7 +172,7 @@ plt.show()
 # %% [markdown]
 # The structured Gauss-Newton steps cost 10 to 20 fixed-G steps each, depending on the
 # solver and the run (a dense Jacobian with Cholesky costs hundreds, see the table
-# below), and they get to the gap in tens of steps where fixed-G needs thousands. Anderson's steps cost two to three plain
+# below), and they get to the gap in tens of steps where fixed-G needs thousands. Anderson's steps cost about three plain
 # ones, and it needs a twentieth of them.
 #
 # The energy is not convex: from the same start the solvers can settle in different

@@ -84,3 +84,14 @@ def test_gauss_newton_on_the_sparse_factor_matches_the_dense(small_full):
     dense = dense_rig.solve(targets, mvcjax.GaussNewton())
     assert bool(info.converged), int(info.iterations)
     np.testing.assert_allclose(sparse, dense, atol=1e-7 * float(small_full.energy.scale))
+
+
+def test_gauss_newton_on_the_sparse_factor_over_frames(small_full):
+    # vmapped: the host solve of the preconditioner takes the frames as one batch.
+    targets = jnp.stack([drag(small_full, [[10.0, 5.0], [0.0, -3.0]]),
+                         drag(small_full, [[-4.0, 8.0], [2.0, 0.0]])])
+    solver = mvcjax.GaussNewton()
+    together = jax.vmap(lambda t: small_full.solve(t, solver))(targets)
+    for k in range(2):
+        np.testing.assert_allclose(together[k], small_full.solve(targets[k], solver), rtol=0,
+                                   atol=1e-7 * float(small_full.energy.scale))

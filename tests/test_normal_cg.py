@@ -70,8 +70,11 @@ def test_conjugate_gradient_stops_on_zero_curvature():
     assert np.all(np.isfinite(np.asarray(x)))
 
 
-def test_conjugate_gradient_hands_the_operator_the_unpreconditioned_direction():
-    # An operator N - C with preconditioner N^{-1}: given N p for free, it never forms N p.
+@pytest.mark.parametrize("rtol, max_steps", [(1e-13, 200), (1e-3, 12), (0.0, 5)],
+                         ids=["looped", "unrolled, stops early", "unrolled, runs out"])
+def test_conjugate_gradient_hands_the_operator_the_unpreconditioned_direction(rtol, max_steps):
+    # An operator N - C with preconditioner N^{-1}: given N p for free, it never forms N p,
+    # and the iterates are those of the same operator forming N p itself.
     rng = np.random.default_rng(2)
     a = rng.normal(size=(30, 30))
     normal = jnp.asarray(a @ a.T + 30 * np.eye(30))
@@ -79,9 +82,16 @@ def test_conjugate_gradient_hands_the_operator_the_unpreconditioned_direction():
     correction = jnp.asarray(c @ c.T)
     b = jnp.asarray(rng.normal(size=(30,)))
     normal_inverse = jnp.linalg.inv(normal)
-    x, _ = conjugate_gradient(lambda p, normal_p: normal_p - correction @ p, b,
-                              lambda r: normal_inverse @ r, rtol=1e-13, max_steps=200)
-    np.testing.assert_allclose(x, np.linalg.solve(normal - correction, b), rtol=1e-7)
+    x, steps = conjugate_gradient(lambda p, normal_p: normal_p - correction @ p, b,
+                                  lambda r: normal_inverse @ r, rtol, max_steps)
+    formed, formed_steps = conjugate_gradient(lambda p, _: normal @ p - correction @ p, b,
+                                              lambda r: normal_inverse @ r, rtol, max_steps)
+    assert int(steps) == int(formed_steps)
+    np.testing.assert_allclose(x, formed, rtol=1e-10, atol=1e-12)
+    if max_steps == 200:
+        np.testing.assert_allclose(x, np.linalg.solve(normal - correction, b), rtol=1e-7)
+    if rtol == 1e-3:
+        assert 0 < int(steps) < max_steps
 
 
 @pytest.fixture(scope="module")
@@ -99,14 +109,14 @@ def gauss_newton(horse_rig):
 
 
 def test_gauss_newton_gradient_is_the_residuals_transposed(gauss_newton):
-    _, problem, y, r, linear, matrix = gauss_newton
+    _, _, y, r, linear, matrix = gauss_newton
     (expected,) = jax.linear_transpose(linear, y)(r)
     np.testing.assert_allclose(matrix.gradient, expected, rtol=1e-9,
                                atol=1e-11 * float(jnp.abs(expected).max()))
 
 
 def test_gauss_newton_matrix_is_the_jacobian_squared(gauss_newton):
-    rig, problem, y, _, linear, matrix = gauss_newton
+    rig, _, y, _, linear, matrix = gauss_newton
     x = jax.random.normal(jax.random.key(4), y.shape, y.dtype)
     (expected,) = jax.linear_transpose(linear, y)(linear(x))
     product = rig.factor.multiply_normal(x) - matrix.correction(x)

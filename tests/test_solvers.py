@@ -392,4 +392,6 @@ def test_structured_solver_over_frames_matches_single_frames(horse_rig):
     targets = jnp.stack([targets_for(horse_rig, *drag_) for drag_ in AGREEING])
     together = mvcjax.deform_frames(horse_rig, targets, solver)
     for k in range(len(AGREEING)):
-        np.testing.assert_allclose(together[k], horse_rig.deform(targets[k], solver), atol=1e-8)
+        # Batched and single solves stop within the solver's tolerance of each other.
+        np.testing.assert_allclose(together[k], horse_rig.deform(targets[k], solver), rtol=0,
+                                   atol=1e-7 * float(horse_rig.energy.scale))

@@ -10,6 +10,7 @@ and the stopping tests stay optimistix's.
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import optimistix as optx
 from jaxtyping import Array, Float
@@ -70,7 +71,9 @@ class StructuredDampedNewtonDescent(_StructuredDescent):
 
     def init(self, y, f_info_struct):
         del f_info_struct
-        return _DampedState(self._matrix(y).at_point())
+        # The first step is always accepted, so this state is never read: zeros.
+        shapes = jax.eval_shape(lambda: self._matrix(y).at_point())
+        return _DampedState(jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes))
 
     def query(self, y, f_info, state):
         del f_info, state
@@ -79,7 +82,8 @@ class StructuredDampedNewtonDescent(_StructuredDescent):
     def step(self, step_size, state):
         matrix = GaussNewtonMatrix(self.problem, self.factor, *state.point)
         # optimistix's damping, 1 / step_size, capped where the step size vanishes.
-        damping = 1 / jnp.maximum(step_size, jnp.finfo(matrix.gradient.dtype).eps)
+        dtype = matrix.gradient.dtype
+        damping = (1 / jnp.maximum(step_size, jnp.finfo(dtype).eps)).astype(dtype)
         x, result = matrix.solve(self.cg_rtol, self.cg_steps, damping)
         return -x, optx.RESULTS.promote(result)
 

@@ -45,9 +45,11 @@ class ScaledProblem(eqx.Module):
     residuals are those of `mvcjax.residuals` divided by the scale, in another order and
     in two gathers of points as complex numbers: the Laplacian, edge and handle rows
     (three-point stencils, each turned to its rest length: zero for a handle, which
-    only moves by its target), then the mean value rows. Every solver step linearises
-    and transposes them; with four gathers (one per term, as `mvcjax.residuals` has)
-    that costs half as much again.
+    only moves by its target), then the mean value rows. Every optimistix step
+    linearises them (its line search and trust regions use the Jacobian) and jaxopt's
+    also transposes them, so the fewer gathers the better (four, one per term as
+    `mvcjax.residuals` has, cost half as much again); the structured descents use the
+    stencils directly (`stencils`, `stencils_transpose`).
 
     Attributes:
         energy: the energy (6).
