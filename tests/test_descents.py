@@ -66,9 +66,12 @@ def test_structured_descents_keep_float32(horse, point):
     targets = drag(rig32, np.array([[60.0, -10.0]] + [[0.0, 0.0]] * 4))
     problem = ScaledProblem(rig32.energy, targets)
     y = problem.scaled(rig32.start(targets))
+    r, linear = jax.linearize(problem.residuals, y)
+    f_info = optx.FunctionInfo.ResidualJac(
+        r, lx.FunctionLinearOperator(linear, jax.eval_shape(lambda: y)))
     for structured, _ in PAIRS.values():
         descent = structured(problem, rig32.factor, cg_steps=8, cg_rtol=1e-2)
-        state = descent.query(y, None, descent.init(y, None))
+        state = descent.query(y, f_info, descent.init(y, eqx.filter_eval_shape(lambda: f_info)))
         assert {leaf.dtype for leaf in jax.tree.leaves(state)
                 if jnp.issubdtype(leaf.dtype, jnp.floating)} == {jnp.dtype(jnp.float32)}
         step, _ = descent.step(jnp.asarray(0.5), state)

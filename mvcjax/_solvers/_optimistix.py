@@ -38,8 +38,8 @@ class _OptimistixLeastSquares(AbstractSolver):
             rotation terms, preconditioned by that constant matrix (see
             `GaussNewtonMatrix`, and the structured descents). `"cholesky"` materialises the
             Jacobian by forward-mode autodiff and factors its normal matrix: exact
-            steps, each about 50 times as expensive on the horse (18 times slower to a
-            1e-6 energy gap), refused above 1 GiB.
+            steps, each about 50 times as expensive on the horse (about 20 times slower to
+            a 1e-6 energy gap), refused above 1 GiB.
         cg_steps, cg_rtol: the conjugate-gradient budget per step and its relative
             tolerance (`"cg"` only).
     """
