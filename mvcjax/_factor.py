@@ -105,6 +105,30 @@ def _local_rows(energy: Energy) -> tuple[Int[Array, "m 3"], Float[Array, "m 3"],
     return rows, coef, jnp.concatenate([energy.laplacian_length, energy.edge_length])
 
 
+def _local_row_weights(energy: Energy) -> Float[Array, " m"]:
+    """The weight of each merged Laplacian and edge row (its term's), in `_local_rows`'
+    order."""
+    w = energy.weights
+    return jnp.concatenate([
+        jnp.broadcast_to(w.laplacian, energy.laplacian_index.shape[:1]),
+        jnp.broadcast_to(w.length, energy.edges.shape[:1]),
+    ]).astype(energy.rest.dtype)
+
+
+def apply_stencils(rows: Int[Array, "m k"], coef: Float[Array, "m k"],
+                   columns: Float[Array, "2 n"]) -> Complex[Array, " m"]:
+    """`D V`: each row `r` is `sum_k coef[r, k] V[rows[r, k]]`, gathered as complex
+    numbers (one complex scalar per index gathers about three times faster on the CPU
+    than a row of two floats)."""
+    return jnp.sum(coef * jax.lax.complex(columns[0], columns[1])[rows], axis=1)
+
+
+def apply_stencils_transpose(rows: Int[Array, "m k"], coef: Float[Array, "m k"],
+                             u: Complex[Array, " m"], n: int) -> Complex[Array, " n"]:
+    """`D^T u`, the transpose of `apply_stencils`, onto `n` vertices."""
+    return jnp.zeros(n, u.dtype).at[rows.reshape(-1)].add((coef * u[:, None]).reshape(-1))
+
+
 def length_scale(squared_length: Array, length: Array) -> Array:
     """The factor that turns a vector of squared length `squared_length` to length
     `length`: `length / |v|`, and 0 for a zero vector (instead of 0/0), with finite
@@ -132,7 +156,7 @@ class AbstractFactor(eqx.Module):
 
     def local_targets(self, columns: Float[Array, "2 n"]) -> Complex[Array, " m"]:
         """`[delta(V); e(V)]`: each Laplacian and edge vector turned to its rest length."""
-        y = jnp.sum(self.coef * jax.lax.complex(columns[0], columns[1])[self.rows], axis=1)
+        y = apply_stencils(self.rows, self.coef, columns)
         return y * length_scale(jnp.real(y) ** 2 + jnp.imag(y) ** 2, self.length)
 
     @abc.abstractmethod
@@ -290,9 +314,7 @@ class SparseFactor(AbstractFactor):
     def step(self, columns, handle_part):
         # A^T W t: scatter each row's weighted target back onto its vertices.
         t = self.row_weight * self.local_targets(columns)
-        z = jnp.zeros(self.host.size, t.dtype).at[self.rows.reshape(-1)].add(
-            (self.coef * t[:, None]).reshape(-1)
-        )
+        z = apply_stencils_transpose(self.rows, self.coef, t, self.host.size)
         return self._solve(jnp.stack([jnp.real(z), jnp.imag(z)], axis=1) + handle_part.T).T
 
     def solve_normal(self, rhs):
@@ -308,12 +330,7 @@ class SparseFactor(AbstractFactor):
 @jax.jit
 def _sparse_local_rows(energy: Energy):
     """The local step's rows, and the weight of each (its term's)."""
-    w = energy.weights
-    row_weight = jnp.concatenate([
-        jnp.broadcast_to(w.laplacian, energy.laplacian_index.shape[:1]),
-        jnp.broadcast_to(w.length, energy.edges.shape[:1]),
-    ])
-    return (*_local_rows(energy), row_weight.astype(energy.rest.dtype))
+    return (*_local_rows(energy), _local_row_weights(energy))
 
 
 def sparse_factor(energy: Energy) -> SparseFactor:

@@ -9,7 +9,13 @@ import jax.numpy as jnp
 from jaxtyping import Array, Complex, Float, Int
 
 from .._energy import Energy, total_energy
-from .._factor import _local_rows, length_scale
+from .._factor import (
+    _local_row_weights,
+    _local_rows,
+    apply_stencils,
+    apply_stencils_transpose,
+    length_scale,
+)
 from ._base import SolveInfo
 
 _JACOBIAN_LIMIT_BYTES = 2**30
@@ -86,10 +92,7 @@ class ScaledProblem(eqx.Module):
                                        jax.lax.complex(u[0], u[1])])
         w = energy.weights
         self.row_weight = jnp.sqrt(jnp.concatenate([
-            jnp.broadcast_to(w.laplacian, energy.laplacian_index.shape[:1]),
-            jnp.broadcast_to(w.length, energy.edges.shape[:1]),
-            jnp.broadcast_to(w.handle, h.shape),
-        ])).astype(dtype)
+            _local_row_weights(energy), jnp.broadcast_to(w.handle, h.shape).astype(dtype)]))
         self.mvc_rows = jnp.concatenate([energy.mvc_centre[:, None], energy.mvc_ring], axis=1)
         self.mvc_coef = jnp.sqrt(w.mvc).astype(dtype) * jnp.concatenate(
             [jnp.ones_like(energy.mvc_weight[:, :1]), -energy.mvc_weight], axis=1)
@@ -103,22 +106,20 @@ class ScaledProblem(eqx.Module):
     def stencils(self, y: Float[Array, "2 n"]) -> Complex[Array, " m"]:
         """`D y`: the Laplacian, edge and handle stencils applied to `y` (offsets not
         subtracted), as complex numbers."""
-        return jnp.sum(self.coef * jax.lax.complex(y[0], y[1])[self.rows], axis=1)
+        return apply_stencils(self.rows, self.coef, y)
 
     def stencils_transpose(self, u: Complex[Array, " m"]) -> Float[Array, "2 n"]:
         """`D^T u`: the transpose of `stencils`."""
-        z = jnp.zeros(self.energy.num_vertices, u.dtype).at[self.rows.reshape(-1)].add(
-            (self.coef * u[:, None]).reshape(-1))
+        z = apply_stencils_transpose(self.rows, self.coef, u, self.energy.num_vertices)
         return jnp.stack([jnp.real(z), jnp.imag(z)])
 
     def residuals(self, y: Float[Array, "2 n"]) -> Float[Array, "2 r"]:
         """All residuals, weighted and scaled, as real and imaginary rows."""
-        z = jax.lax.complex(y[0], y[1])
         # Every row's coefficients sum to zero (Laplacian, edge and mean value rows) or
         # one (handles, measured from the scaled targets), so the centring drops out.
         v = self.stencils(y) - self.offset
         turned = v * length_scale(jnp.real(v) ** 2 + jnp.imag(v) ** 2, self.length)
-        mvc = jnp.sum(self.mvc_coef * z[self.mvc_rows], axis=1)
+        mvc = apply_stencils(self.mvc_rows, self.mvc_coef, y)
         r = jnp.concatenate([self.row_weight * (v - turned), mvc])
         return jnp.stack([jnp.real(r), jnp.imag(r)])
 
