@@ -64,10 +64,9 @@ class _OptimistixLeastSquares(AbstractSolver):
                 f"{type(self).__name__}(cg_rtol={self.cg_rtol}): a relative decrease, in [0, 1)."
             )
 
-    def _parts(self, structured: optx.AbstractDescent | None
-               ) -> tuple[optx.AbstractDescent, optx.AbstractSearch]:
-        """The descent and the search: `structured` is the `"cg"` descent, `None` asks
-        for optimistix's own with the dense linear solver."""
+    def _parts(self) -> tuple[type, optx.AbstractDescent, optx.AbstractSearch]:
+        """The structured descent's class (`"cg"`), optimistix's own descent with the
+        dense linear solver (`"cholesky"`), and the search."""
         raise NotImplementedError
 
     def _configured(self, problem: ScaledProblem, factor, dtype):
@@ -75,10 +74,9 @@ class _OptimistixLeastSquares(AbstractSolver):
             check_jacobian_fits(problem.energy, dtype,
                                 f"{type(self).__name__}(linear_solver='cholesky')",
                                 f"the default {type(self).__name__}(linear_solver='cg') or ")
-        structured = None
+        structured, descent, search = self._parts()
         if self.linear_solver == "cg":
-            structured = (problem, factor, self.cg_steps, self.cg_rtol)
-        descent, search = self._parts(structured)
+            descent = structured(problem, factor, self.cg_steps, self.cg_rtol)
         return _GaussNewtonFamily(
             rtol=default_tol(dtype) if self.rtol is None else self.rtol,
             atol=default_tol(dtype) if self.atol is None else self.atol,
@@ -158,11 +156,9 @@ class GaussNewton(_OptimistixLeastSquares):
 
     line_search: bool = eqx.field(default=True, static=True)
 
-    def _parts(self, structured):
+    def _parts(self):
         search = optx.BacktrackingArmijo() if self.line_search else optx.LearningRate(1.0)
-        if structured is None:
-            return optx.NewtonDescent(linear_solver=_CHOLESKY), search
-        return StructuredNewtonDescent(*structured), search
+        return StructuredNewtonDescent, optx.NewtonDescent(linear_solver=_CHOLESKY), search
 
 
 class LevenbergMarquardt(_OptimistixLeastSquares):
@@ -175,23 +171,21 @@ class LevenbergMarquardt(_OptimistixLeastSquares):
     by `N^{-1}` alone, which suits the small damping near a solution.
     """
 
-    def _parts(self, structured):
-        if structured is None:
-            return optx.DampedNewtonDescent(linear_solver=_CHOLESKY), optx.ClassicalTrustRegion()
-        return StructuredDampedNewtonDescent(*structured), optx.ClassicalTrustRegion()
+    def _parts(self):
+        return (StructuredDampedNewtonDescent, optx.DampedNewtonDescent(linear_solver=_CHOLESKY),
+                optx.ClassicalTrustRegion())
 
 
 class Dogleg(_OptimistixLeastSquares):
     """Powell's dogleg trust-region method on the energy (6): `optimistix.Dogleg`'s loop,
-    trust region and dogleg step, with the Newton and Cauchy points from the structured
-    Gauss-Newton matrix (`StructuredDoglegDescent`; optimistix's descent with
+    trust region and dogleg step, with the Newton point and the gradient from the
+    structured Gauss-Newton matrix (`StructuredDoglegDescent`; optimistix's descent with
     `linear_solver="cholesky"`).
 
     Same conventions as `GaussNewton`: tolerances on coordinates scaled to the unit
     diagonal.
     """
 
-    def _parts(self, structured):
-        if structured is None:
-            return DoglegDescent(linear_solver=_CHOLESKY), optx.ClassicalTrustRegion()
-        return StructuredDoglegDescent(*structured), optx.ClassicalTrustRegion()
+    def _parts(self):
+        return (StructuredDoglegDescent, DoglegDescent(linear_solver=_CHOLESKY),
+                optx.ClassicalTrustRegion())
