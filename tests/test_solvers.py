@@ -364,7 +364,6 @@ def test_a_solver_without_a_history_says_so(horse_rig):
         Plain().fixed_steps(3)
 
 
-
 @pytest.mark.parametrize("solver", [
     mvcjax.GaussNewton(), mvcjax.Dogleg(), mvcjax.LevenbergMarquardt(),
     mvcjax.Dogleg(linear_solver="cholesky"),
