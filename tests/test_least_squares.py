@@ -2,11 +2,12 @@
 
 import jax
 import jax.numpy as jnp
+import lineax as lx
 import numpy as np
 import pytest
 
 import mvcjax
-from mvcjax._solvers._least_squares import ScaledProblem
+from mvcjax._solvers._least_squares import ScaledProblem, StructuredJacobian
 
 from conftest import drag
 
@@ -51,3 +52,37 @@ def test_energy_of_columns_is_the_energy(problem):
     p, vertices = problem
     energy = mvcjax.total_energy(p.energy, vertices, p.targets)
     assert float(p.energy_of_columns(vertices.T)) == pytest.approx(float(energy), rel=1e-12)
+
+
+def test_linearisation_is_the_residuals_and_their_jacobian(problem):
+    # The closed-form linearisation the structured solvers carry, against autodiff of
+    # the residuals: the residuals, J dy, J^T u and the materialised J.
+    p, vertices = problem
+    y = p.scaled(vertices)
+    at = p.linearise(y)
+    jacobian = StructuredJacobian(p, at)
+    r, linear = jax.linearize(p.residuals, y)
+    np.testing.assert_allclose(at.residual, r, rtol=1e-12, atol=1e-14)
+    dy = jax.random.normal(jax.random.key(2), y.shape, y.dtype)
+    scale = float(jnp.abs(linear(dy)).max())
+    np.testing.assert_allclose(jacobian.mv(dy), linear(dy), rtol=1e-10, atol=1e-12 * scale)
+    u = jax.random.normal(jax.random.key(3), r.shape, r.dtype)
+    (expected,) = jax.linear_transpose(linear, y)(u)
+    np.testing.assert_allclose(jacobian.transpose().mv(u.reshape(-1)).reshape(y.shape),
+                               expected, rtol=1e-10,
+                               atol=1e-12 * float(jnp.abs(expected).max()))
+    dense = jax.jacfwd(p.residuals)(y).reshape(r.size, y.size)
+    np.testing.assert_allclose(lx.materialise(jacobian).as_matrix(), dense, rtol=1e-10,
+                               atol=1e-12 * float(jnp.abs(dense).max()))
+    assert jacobian.in_structure() == jax.eval_shape(lambda: y)
+    assert jacobian.out_structure() == jax.eval_shape(lambda: r)
+
+
+def test_linearisation_at_a_zero_stencil_vector(problem):
+    # A stencil vector of zero length (a vertex on its neighbours' line and midway, or
+    # every vertex at one point) has no direction: its turn and scale are zero, not NaN.
+    p, vertices = problem
+    at = p.linearise(jnp.zeros_like(p.scaled(vertices)))
+    for leaf in jax.tree.leaves(at):
+        assert bool(jnp.all(jnp.isfinite(jnp.abs(leaf))))
+    assert float(jnp.abs(at.turn[:-p.energy.handles.shape[0]]).max()) == 0.0

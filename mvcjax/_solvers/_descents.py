@@ -16,7 +16,7 @@ import optimistix as optx
 from jaxtyping import Array, Float
 
 from .._factor import AbstractFactor
-from ._least_squares import ScaledProblem
+from ._least_squares import ScaledProblem, StructuredJacobian
 from ._normal_cg import GaussNewtonMatrix
 
 
@@ -34,8 +34,11 @@ class _StructuredDescent(optx.AbstractDescent):
     cg_steps: int = eqx.field(static=True)
     cg_rtol: float = eqx.field(static=True)
 
-    def _matrix(self, y) -> GaussNewtonMatrix:
-        return GaussNewtonMatrix.at(self.problem, self.factor, y)
+    def _matrix(self, y, f_info: optx.FunctionInfo.ResidualJac) -> GaussNewtonMatrix:
+        # The structured loop's Jacobian carries the point's linearisation; optimistix's
+        # own (a `jax.linearize`) does not, and then it is computed again.
+        at = f_info.jac.at if isinstance(f_info.jac, StructuredJacobian) else None
+        return GaussNewtonMatrix.at(self.problem, self.factor, y, at)
 
 
 class _NewtonState(eqx.Module):
@@ -52,8 +55,8 @@ class StructuredNewtonDescent(_StructuredDescent):
         return _NewtonState(y, optx.RESULTS.successful)
 
     def query(self, y, f_info, state):
-        del f_info, state
-        newton, result = self._matrix(y).solve(self.cg_rtol, self.cg_steps)
+        del state
+        newton, result = self._matrix(y, f_info).solve(self.cg_rtol, self.cg_steps)
         return _NewtonState(newton, optx.RESULTS.promote(result))
 
     def step(self, step_size, state):
@@ -72,12 +75,12 @@ class StructuredDampedNewtonDescent(_StructuredDescent):
     def init(self, y, f_info_struct):
         del f_info_struct
         # The first step is always accepted, so this state is never read: zeros.
-        shapes = jax.eval_shape(lambda: self._matrix(y).at_point())
+        shapes = jax.eval_shape(lambda: GaussNewtonMatrix.at(self.problem, self.factor, y).at_point())
         return _DampedState(jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes))
 
     def query(self, y, f_info, state):
-        del f_info, state
-        return _DampedState(self._matrix(y).at_point())
+        del state
+        return _DampedState(self._matrix(y, f_info).at_point())
 
     def step(self, step_size, state):
         matrix = GaussNewtonMatrix(self.problem, self.factor, *state.point)
@@ -114,7 +117,7 @@ class StructuredDoglegDescent(_StructuredDescent):
         return dogleg_init(y, f_info_struct)
 
     def query(self, y, f_info, state):
-        matrix = self._matrix(y)
+        matrix = self._matrix(y, f_info)
         grad = matrix.gradient
         denom = jnp.sum(f_info.jac.mv(grad) ** 2)
         denom_nonzero = denom > jnp.finfo(denom.dtype).eps

@@ -6,6 +6,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import lineax as lx
 from jaxtyping import Array, Complex, Float, Int
 
 from .._energy import Energy, total_energy
@@ -123,6 +124,28 @@ class ScaledProblem(eqx.Module):
         r = jnp.concatenate([self.row_weight * (v - turned), mvc])
         return jnp.stack([jnp.real(r), jnp.imag(r)])
 
+    def linearise(self, y: Float[Array, "2 n"]) -> Linearisation:
+        """The residuals at `y` and what their Jacobian there is made of (one gather of
+        each kind, shared by the residuals, the Jacobian and the Gauss-Newton matrix)."""
+        v = self.stencils(y) - self.offset
+        squared = jnp.real(v) ** 2 + jnp.imag(v) ** 2
+        scale = length_scale(squared, self.length)
+        mvc = apply_stencils(self.mvc_rows, self.mvc_coef, y)
+        r = jnp.concatenate([self.row_weight * (v - scale * v), mvc])
+        return Linearisation(
+            residual=jnp.stack([jnp.real(r), jnp.imag(r)]),
+            turn=1j * v * length_scale(squared, jnp.ones_like(squared)),
+            scale=scale, turned=scale * v)
+
+    def jacobian_product(self, at: Linearisation, dy: Float[Array, "2 n"]) -> Float[Array, "2 r"]:
+        """`J dy` at the linearisation `at`: row `r` is `W_r^{1/2} (I - c_r P_r) D_r dy`
+        with `P_r` the projection across its vector, the mean value rows linear."""
+        d = self.stencils(dy)
+        across = jnp.real(jnp.conj(at.turn) * d)
+        mvc = apply_stencils(self.mvc_rows, self.mvc_coef, dy)
+        r = jnp.concatenate([self.row_weight * (d - at.scale * across * at.turn), mvc])
+        return jnp.stack([jnp.real(r), jnp.imag(r)])
+
     def energy_at(self, y: Float[Array, "2 n"]) -> Float[Array, ""]:
         """The energy (6) at `y`, by `mvcjax.total_energy` (what solvers report)."""
         return total_energy(self.energy, self.unscaled(y), self.targets)
@@ -141,3 +164,60 @@ class ScaledProblem(eqx.Module):
             iterations=jnp.asarray(iterations, jnp.int32),
             energy=self.energy_at(y),
         )
+
+
+class Linearisation(eqx.Module):
+    """The scaled residuals at a point and what their Jacobian there needs: point data
+    only, so that a solver carries it from step to step without the problem.
+
+    Attributes:
+        residual: `(2, r)` the residuals (`ScaledProblem.residuals`).
+        turn: `(m,)` for each stencil row, the unit vector across its current vector `v`
+            (as a complex number; zero for a zero vector).
+        scale: `(m,)` `c`, rest length over current length (zero for the handle rows).
+        turned: `(m,)` `c v`, the vector turned to its rest length.
+    """
+
+    residual: Float[Array, "2 r"]
+    turn: Complex[Array, " m"]
+    scale: Float[Array, " m"]
+    turned: Complex[Array, " m"]
+
+
+class StructuredJacobian(lx.AbstractLinearOperator):
+    """The Jacobian of a `ScaledProblem`'s residuals at a `Linearisation`, as a lineax
+    operator: what optimistix's searches and dogleg ask of `FunctionInfo.ResidualJac`
+    (`mv`), in closed form instead of a `jax.linearize` of the residuals."""
+
+    problem: ScaledProblem
+    at: Linearisation
+
+    def mv(self, vector):
+        return self.problem.jacobian_product(self.at, vector)
+
+    def as_matrix(self):
+        n = self.problem.energy.num_vertices
+        eye = jnp.eye(2 * n, dtype=self.at.scale.dtype).reshape(2 * n, 2, n)
+        return jax.vmap(self.mv, out_axes=-1)(eye).reshape(-1, 2 * n)
+
+    def transpose(self):
+        return lx.MatrixLinearOperator(self.as_matrix().T)
+
+    def in_structure(self):
+        n = self.problem.energy.num_vertices
+        return jax.ShapeDtypeStruct((2, n), self.at.scale.dtype)
+
+    def out_structure(self):
+        return jax.ShapeDtypeStruct(self.at.residual.shape, self.at.residual.dtype)
+
+
+# lineax asks these of every operator (its structure checks, materialising); the
+# Jacobian of the residuals has no special structure of those kinds.
+for _check in (lx.is_symmetric, lx.is_diagonal, lx.is_tridiagonal, lx.has_unit_diagonal,
+               lx.is_lower_triangular, lx.is_upper_triangular, lx.is_positive_semidefinite,
+               lx.is_negative_semidefinite):
+    _check.register(StructuredJacobian)(lambda operator: False)
+lx.linearise.register(StructuredJacobian)(lambda operator: operator)
+lx.materialise.register(StructuredJacobian)(
+    lambda operator: lx.MatrixLinearOperator(operator.as_matrix()))
+lx.diagonal.register(StructuredJacobian)(lambda operator: jnp.diag(operator.as_matrix()))

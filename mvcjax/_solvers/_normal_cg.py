@@ -41,8 +41,8 @@ import jax.numpy as jnp
 import lineax as lx
 from jaxtyping import Array, Complex, Float
 
-from .._factor import AbstractFactor, length_scale
-from ._least_squares import ScaledProblem, default_tol
+from .._factor import AbstractFactor
+from ._least_squares import Linearisation, ScaledProblem, default_tol
 
 
 def _dot(a, b):
@@ -139,17 +139,16 @@ class GaussNewtonMatrix(eqx.Module):
     gradient: Float[Array, "2 n"]
 
     @classmethod
-    def at(cls, problem: ScaledProblem, factor: AbstractFactor, y: Float[Array, "2 n"]
-           ) -> GaussNewtonMatrix:
-        """The matrix and the gradient at `y`."""
-        v = problem.stencils(y) - problem.offset
-        squared = jnp.real(v) ** 2 + jnp.imag(v) ** 2
-        c = length_scale(squared, problem.length)
+    def at(cls, problem: ScaledProblem, factor: AbstractFactor, y: Float[Array, "2 n"],
+           linearisation: Linearisation | None = None) -> GaussNewtonMatrix:
+        """The matrix and the gradient at `y`, from `problem.linearise(y)` (computed
+        unless given)."""
+        at = problem.linearise(y) if linearisation is None else linearisation
         weight = problem.row_weight**2
         gradient = factor.multiply_normal(y) - problem.stencils_transpose(
-            weight * (c * v + problem.offset))
-        return cls(problem, factor, turn=1j * v * length_scale(squared, jnp.ones_like(squared)),
-                   softness=weight * c * (2 - c), gradient=gradient)
+            weight * (at.turned + problem.offset))
+        return cls(problem, factor, turn=at.turn, softness=weight * at.scale * (2 - at.scale),
+                   gradient=gradient)
 
     def at_point(self) -> tuple[Array, Array, Array]:
         """What depends on the point (`turn`, `softness`, `gradient`): what a descent
