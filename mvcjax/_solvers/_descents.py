@@ -1,10 +1,13 @@
 """Optimistix descents that solve each step's linear problem with the energy's structure
 (`GaussNewtonMatrix`): Gauss-Newton's, Levenberg-Marquardt's and the dogleg's.
 
-Optimistix hands its descents the Jacobian as a matrix-free operator; these descents use
-the point `y` instead, which optimistix also hands them, to build the Gauss-Newton matrix
-in its structured form. The searches (Armijo backtracking, the classical trust region)
-and the stopping tests stay optimistix's.
+Optimistix hands its descents the Jacobian as an operator. In the structured loop
+(`_StructuredGaussNewton`: optimistix's Gauss-Newton step, linearised in closed form)
+that operator is a `StructuredJacobian`, which carries the point's linearisation, so
+the descent builds the Gauss-Newton matrix from it without gathering the point again;
+in optimistix's loop (a `jax.linearize`) the descent builds it from the point `y`,
+which optimistix also hands it. The searches (Armijo backtracking, the classical trust
+region) and the stopping tests stay optimistix's.
 """
 
 from __future__ import annotations

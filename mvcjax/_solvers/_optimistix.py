@@ -44,7 +44,9 @@ class _OptimistixLeastSquares(AbstractSolver):
             `"cg"` (default) uses the structure: conjugate gradients on the
             Gauss-Newton matrix kept as the rig's constant normal matrix less the
             rotation terms, preconditioned by that constant matrix (see
-            `GaussNewtonMatrix`, and the structured descents). `"cholesky"` materialises the
+            `GaussNewtonMatrix`, and the structured descents), in optimistix's
+            Gauss-Newton step with the residuals linearised in closed form
+            (`_StructuredGaussNewton`). `"cholesky"` materialises the
             Jacobian by forward-mode autodiff and factors its normal matrix: exact
             steps, each about 50 times as expensive on the horse (about 20 times slower to
             a 1e-6 energy gap), refused above 1 GiB.
