@@ -177,6 +177,7 @@ class _StructuredGaussNewton(optx.AbstractLeastSquaresSolver):
 
     def init(self, fn, y, args, options, f_struct, aux_struct, tags):
         del fn, args, options, f_struct, aux_struct, tags
+        # Never read: the first step is always accepted.
         at = jax.tree.map(jnp.zeros_like, self.problem.linearise(y))
         info_struct = eqx.filter_eval_shape(self._info, at)
         return _StructuredState(
@@ -202,11 +203,8 @@ class _StructuredGaussNewton(optx.AbstractLeastSquaresSolver):
         def rejected(descent_state):
             return y, state.at, descent_state, jnp.array(False)
 
-        dynamic, static = eqx.partition(state.descent_state, eqx.is_array)
-        y, at, dynamic, terminate = jax.lax.cond(
-            accept, lambda d: _strip(accepted(eqx.combine(d, static))),
-            lambda d: _strip(rejected(eqx.combine(d, static))), dynamic)
-        descent_state = eqx.combine(dynamic, static)
+        y, at, descent_state, terminate = jax.lax.cond(accept, accepted, rejected,
+                                                       state.descent_state)
         y_descent, descent_result = self.descent.step(step_size, descent_state)
         result = optx.RESULTS.where(search_result == optx.RESULTS.successful, descent_result,
                                     search_result)
@@ -220,11 +218,6 @@ class _StructuredGaussNewton(optx.AbstractLeastSquaresSolver):
 
     def postprocess(self, fn, y, aux, args, options, state, tags, result):
         return y, aux, {}
-
-
-def _strip(out):
-    y, at, descent_state, terminate = out
-    return y, at, eqx.filter(descent_state, eqx.is_array), terminate
 
 
 class _GaussNewtonFamily(optx.AbstractGaussNewton):
