@@ -68,12 +68,16 @@ def test_linearisation_is_the_residuals_and_their_jacobian(problem):
     np.testing.assert_allclose(jacobian.mv(dy), linear(dy), rtol=1e-10, atol=1e-12 * scale)
     u = jax.random.normal(jax.random.key(3), r.shape, r.dtype)
     (expected,) = jax.linear_transpose(linear, y)(u)
-    np.testing.assert_allclose(jacobian.transpose().mv(u.reshape(-1)).reshape(y.shape),
-                               expected, rtol=1e-10,
+    np.testing.assert_allclose(jacobian.transpose().mv(u), expected, rtol=1e-10,
                                atol=1e-12 * float(jnp.abs(expected).max()))
     dense = jax.jacfwd(p.residuals)(y).reshape(r.size, y.size)
-    np.testing.assert_allclose(lx.materialise(jacobian).as_matrix(), dense, rtol=1e-10,
+    materialised = lx.materialise(jacobian)
+    assert materialised.in_structure() == jacobian.in_structure()
+    assert materialised.out_structure() == jacobian.out_structure()
+    np.testing.assert_allclose(materialised.as_matrix(), dense, rtol=1e-10,
                                atol=1e-12 * float(jnp.abs(dense).max()))
+    np.testing.assert_allclose(materialised.mv(dy), linear(dy), rtol=1e-10,
+                               atol=1e-12 * scale)
     assert jacobian.in_structure() == jax.eval_shape(lambda: y)
     assert jacobian.out_structure() == jax.eval_shape(lambda: r)
 

@@ -115,18 +115,15 @@ class ScaledProblem(eqx.Module):
         return jnp.stack([jnp.real(z), jnp.imag(z)])
 
     def residuals(self, y: Float[Array, "2 n"]) -> Float[Array, "2 r"]:
-        """All residuals, weighted and scaled, as real and imaginary rows."""
-        # Every row's coefficients sum to zero (Laplacian, edge and mean value rows) or
-        # one (handles, measured from the scaled targets), so the centring drops out.
-        v = self.stencils(y) - self.offset
-        turned = v * length_scale(jnp.real(v) ** 2 + jnp.imag(v) ** 2, self.length)
-        mvc = apply_stencils(self.mvc_rows, self.mvc_coef, y)
-        r = jnp.concatenate([self.row_weight * (v - turned), mvc])
-        return jnp.stack([jnp.real(r), jnp.imag(r)])
+        """All residuals, weighted and scaled, as real and imaginary rows (the rest of
+        `linearise`, unused, is dropped by XLA)."""
+        return self.linearise(y).residual
 
     def linearise(self, y: Float[Array, "2 n"]) -> Linearisation:
         """The residuals at `y` and what their Jacobian there is made of (one gather of
         each kind, shared by the residuals, the Jacobian and the Gauss-Newton matrix)."""
+        # Every row's coefficients sum to zero (Laplacian, edge and mean value rows) or
+        # one (handles, measured from the scaled targets), so the centring drops out.
         v = self.stencils(y) - self.offset
         squared = jnp.real(v) ** 2 + jnp.imag(v) ** 2
         scale = length_scale(squared, self.length)
@@ -201,7 +198,8 @@ class StructuredJacobian(lx.AbstractLinearOperator):
         return jax.vmap(self.mv, out_axes=-1)(eye).reshape(-1, 2 * n)
 
     def transpose(self):
-        return lx.MatrixLinearOperator(self.as_matrix().T)
+        transpose = jax.linear_transpose(self.mv, self.in_structure())
+        return lx.FunctionLinearOperator(lambda u: transpose(u)[0], self.out_structure())
 
     def in_structure(self):
         n = self.problem.energy.num_vertices
@@ -219,5 +217,8 @@ for _check in (lx.is_symmetric, lx.is_diagonal, lx.is_tridiagonal, lx.has_unit_d
     _check.register(StructuredJacobian)(lambda operator: False)
 lx.linearise.register(StructuredJacobian)(lambda operator: operator)
 lx.materialise.register(StructuredJacobian)(
-    lambda operator: lx.MatrixLinearOperator(operator.as_matrix()))
+    lambda operator: lx.PyTreeLinearOperator(
+        operator.as_matrix().reshape(operator.out_structure().shape
+                                     + operator.in_structure().shape),
+        operator.out_structure()))
 lx.diagonal.register(StructuredJacobian)(lambda operator: jnp.diag(operator.as_matrix()))

@@ -178,7 +178,8 @@ class _StructuredGaussNewton(optx.AbstractLeastSquaresSolver):
     def init(self, fn, y, args, options, f_struct, aux_struct, tags):
         del fn, args, options, f_struct, aux_struct, tags
         # Never read: the first step is always accepted.
-        at = jax.tree.map(jnp.zeros_like, self.problem.linearise(y))
+        at = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype),
+                          jax.eval_shape(self.problem.linearise, y))
         info_struct = eqx.filter_eval_shape(self._info, at)
         return _StructuredState(
             first_step=jnp.array(True), y_eval=y,
