@@ -46,6 +46,8 @@ def solvers():
         "gauss_newton": (mvcjax.GaussNewton(), 400),
         "dogleg": (mvcjax.Dogleg(), 400),
         "levenberg_marquardt": (mvcjax.LevenbergMarquardt(), 400),
+        # The earlier default, for comparison in the same run: 8 plain CG iterations a step.
+        "gauss_newton_cg8_undeflated": (mvcjax.GaussNewton(cg_steps=8, cg_deflate=False), 400),
         "gauss_newton_cholesky": (mvcjax.GaussNewton(linear_solver="cholesky"), 200),
         "jaxopt_gauss_newton": (mvcjax.JaxoptGaussNewton(), 200),
         "jaxopt_levenberg_marquardt": (mvcjax.JaxoptLevenbergMarquardt(), 200),

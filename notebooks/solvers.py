@@ -23,8 +23,9 @@
 # - `GaussNewton()`, `Dogleg()`, `LevenbergMarquardt()`: optimistix's methods on the
 #   residuals. The Jacobian `A - db/dV` is never formed: each step runs a few conjugate
 #   gradients on the Gauss-Newton matrix, kept as the rig's constant normal matrix
-#   `N = A^T W A` (the matrix behind `G`) less the rotation terms, and preconditioned by
-#   `N`. `linear_solver="cholesky"` is the dense alternative;
+#   `N = A^T W A` (the matrix behind `G`) less the rotation terms, preconditioned by
+#   `N` and deflated by the previous step (`cg_deflate`). `linear_solver="cholesky"` is
+#   the dense alternative;
 # - `JaxoptGaussNewton()`, `JaxoptLevenbergMarquardt()`: jaxopt's, on a dense Jacobian.
 #
 # This notebook runs them on the horse, records the energy after every step with

@@ -94,6 +94,84 @@ def test_conjugate_gradient_hands_the_operator_the_unpreconditioned_direction(rt
         assert 0 < int(steps) < max_steps
 
 
+def _normal_less_correction(seed, size=30):
+    # An operator N - C with preconditioner N^{-1}, the Gauss-Newton matrix's form.
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(size, size))
+    normal = jnp.asarray(a @ a.T + size * np.eye(size))
+    c = 0.5 * rng.normal(size=(size, 5))
+    correction = jnp.asarray(c @ c.T)
+    return normal, correction, jnp.asarray(rng.normal(size=(size,))), rng
+
+
+@pytest.mark.parametrize("unroll", [True, False])
+@pytest.mark.parametrize("max_steps", [1, 2, 5])
+@pytest.mark.parametrize("raised", [False, True])
+def test_deflated_conjugate_gradient_minimises_over_the_vector_and_a_krylov_space(
+        monkeypatch, unroll, max_steps, raised):
+    # The reference, built densely: the minimiser of x^T A x / 2 - b^T x over span{w}
+    # plus the Krylov space of (I - Q A) M^{-1} A from (I - Q A) M^{-1} r0, where
+    # Q = w w^T / (w^T A w) and r0 = b - A Q b (Saad et al. 2000). With the curvature
+    # along w raised to c, the same for A + (c - w^T A w) (A w)(A w)^T / (w^T A w)^2.
+    normal, correction, b, rng = _normal_less_correction(4)
+    a = normal - correction
+    m_inv = jnp.linalg.inv(normal)
+    w = jnp.asarray(rng.normal(size=b.shape))
+    if not unroll:
+        monkeypatch.setattr(_normal_cg, "UNROLL_STEPS", 0)
+    deflation = (w, a @ w, normal @ w)
+    if raised:
+        curvature = 3.0 * (w @ a @ w)
+        deflation += (curvature,)
+        aw = a @ w
+        a = a + (curvature - w @ aw) * jnp.outer(aw, aw) / (w @ aw) ** 2
+    x, steps = conjugate_gradient(lambda p, normal_p: normal_p - correction @ p, b,
+                                  lambda r: m_inv @ r, 0.0, max_steps, deflation=deflation)
+    q = jnp.outer(w, w) / (w @ a @ w)
+    project = jnp.eye(b.size) - q @ a
+    basis = [w, project @ m_inv @ (b - a @ q @ b)]
+    for _ in range(max_steps - 1):
+        basis.append(project @ m_inv @ a @ basis[-1])
+    basis, _ = jnp.linalg.qr(jnp.stack(basis, axis=1))
+    expected = basis @ jnp.linalg.solve(basis.T @ a @ basis, basis.T @ b)
+    assert int(steps) == max_steps
+    np.testing.assert_allclose(x, expected, rtol=1e-9, atol=1e-12)
+    # The residual stays orthogonal to w.
+    assert abs(float(w @ (b - a @ x))) <= 1e-10 * float(jnp.linalg.norm(w) * jnp.linalg.norm(b))
+
+
+def test_deflated_conjugate_gradient_edge_cases():
+    normal, correction, b, _ = _normal_less_correction(5)
+    a = normal - correction
+    m_inv = jnp.linalg.inv(normal)
+
+    def run(w, rtol=1e-12, max_steps=200):
+        return conjugate_gradient(lambda p, normal_p: normal_p - correction @ p, b,
+                                  lambda r: m_inv @ r, rtol, max_steps,
+                                  deflation=(w, a @ w, normal @ w))
+
+    exact = jnp.linalg.solve(a, b)
+    # Run long, it solves the system.
+    x, _ = run(jnp.ones_like(b))
+    np.testing.assert_allclose(x, exact, rtol=1e-8)
+    # Deflated by the solution, it starts there and takes no step.
+    x, steps = run(3.0 * exact, rtol=1e-8)
+    np.testing.assert_allclose(x, exact, rtol=1e-10)
+    assert int(steps) == 0
+    # A curvature below w^T A w changes nothing.
+    low, _ = run(jnp.ones_like(b), rtol=0.0, max_steps=3)
+    lowered, _ = conjugate_gradient(
+        lambda p, normal_p: normal_p - correction @ p, b, lambda r: m_inv @ r, 0.0, 3,
+        deflation=(jnp.ones_like(b), a @ jnp.ones_like(b), normal @ jnp.ones_like(b), 0.0))
+    np.testing.assert_allclose(lowered, low, rtol=1e-12, atol=1e-14)
+    # Deflated by zero (a first Gauss-Newton step, with no previous one), it is plain CG.
+    x, steps = run(jnp.zeros_like(b), rtol=0.0, max_steps=4)
+    plain, plain_steps = conjugate_gradient(lambda p, normal_p: normal_p - correction @ p, b,
+                                            lambda r: m_inv @ r, 0.0, 4)
+    assert int(steps) == int(plain_steps) == 4
+    np.testing.assert_allclose(x, plain, rtol=1e-12, atol=1e-14)
+
+
 @pytest.fixture(scope="module")
 def gauss_newton(horse_rig):
     # The structured matrix at a dragged, perturbed point, and the residuals' own
@@ -135,6 +213,13 @@ def test_gauss_newton_solve_matches_the_dense_step(gauss_newton, damping):
     x, result = matrix.solve(rtol=1e-13, max_steps=2000, damping=damping)
     assert result == lx.RESULTS.successful
     np.testing.assert_allclose(x, expected, rtol=1e-7, atol=1e-7 * float(jnp.abs(expected).max()))
+    # Deflated by some previous step, it converges to the same step.
+    d = jax.random.normal(jax.random.key(5), y.shape, y.dtype)
+    deflated, result = matrix.solve(rtol=1e-13, max_steps=2000, damping=damping,
+                                    previous=(d, rig.factor.multiply_normal(d), 0.0))
+    assert result == lx.RESULTS.successful
+    np.testing.assert_allclose(deflated, expected, rtol=1e-7,
+                               atol=1e-7 * float(jnp.abs(expected).max()))
 
     one, _ = matrix.solve(rtol=0.0, max_steps=1, damping=damping)
     columns = problem.unscaled(y).T

@@ -12,6 +12,8 @@ region) and the stopping tests stay optimistix's.
 
 from __future__ import annotations
 
+from typing import Any
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -30,12 +32,15 @@ class _StructuredDescent(optx.AbstractDescent):
         problem: the scaled residuals (optimistix's `fn`, as data).
         factor: the rig's factor.
         cg_steps, cg_rtol: the conjugate-gradient budget per linear solve.
+        cg_deflate: deflate each solve by the previous step, with the curvature observed
+            along it (`GaussNewtonMatrix.solve`).
     """
 
     problem: ScaledProblem
     factor: AbstractFactor
     cg_steps: int = eqx.field(static=True)
     cg_rtol: float = eqx.field(static=True)
+    cg_deflate: bool = eqx.field(static=True, default=True)
 
     def _matrix(self, y, f_info: optx.FunctionInfo.ResidualJac) -> GaussNewtonMatrix:
         # The structured loop's Jacobian carries the point's linearisation; optimistix's
@@ -43,54 +48,88 @@ class _StructuredDescent(optx.AbstractDescent):
         at = f_info.jac.at if isinstance(f_info.jac, StructuredJacobian) else None
         return GaussNewtonMatrix.at(self.problem, self.factor, y, at)
 
+    def _previous(self, y) -> _Previous:
+        # At the start there is no step yet: the previous point is this one (a zero step
+        # deflates nothing), the gradient unread.
+        return _Previous(y, self.factor.multiply_normal(y), jnp.zeros_like(y))
+
+    def _solve(self, matrix: GaussNewtonMatrix, step, damping=0.0):
+        return matrix.solve(self.cg_rtol, self.cg_steps, damping,
+                            previous=step if self.cg_deflate else None)
+
+
+class _Previous(eqx.Module):
+    """The point of the last query, `N` times it and the gradient there: from them the
+    next query's step that led to its point, by which its solve is deflated, and the
+    curvature observed along that step (`GaussNewtonMatrix.solve`)."""
+
+    point: Float[Array, "2 n"]
+    normal_point: Float[Array, "2 n"]
+    gradient: Float[Array, "2 n"]
+
+    def step_to(self, y, matrix: GaussNewtonMatrix) -> tuple[Array, Array, Array]:
+        """`(d, N d, d^T (g(y) - g))` from the last query's point to `y` (zero at the
+        first), `g` the gradient `J^T r`."""
+        d = y - self.point
+        return (d, matrix.normal_point - self.normal_point,
+                jnp.vdot(d, matrix.gradient - self.gradient))
+
 
 class _NewtonState(eqx.Module):
     newton: Float[Array, "2 n"]
     result: optx.RESULTS
+    previous: _Previous
 
 
 class StructuredNewtonDescent(_StructuredDescent):
     """`optimistix.NewtonDescent` for the least-squares residuals, by
-    `GaussNewtonMatrix.solve`."""
+    `GaussNewtonMatrix.solve`, deflated by the previous step."""
 
     def init(self, y, f_info_struct):
         del f_info_struct
-        return _NewtonState(y, optx.RESULTS.successful)
+        return _NewtonState(y, optx.RESULTS.successful, self._previous(y))
 
     def query(self, y, f_info, state):
-        del state
-        newton, result = self._matrix(y, f_info).solve(self.cg_rtol, self.cg_steps)
-        return _NewtonState(newton, optx.RESULTS.promote(result))
+        matrix = self._matrix(y, f_info)
+        newton, result = self._solve(matrix, state.previous.step_to(y, matrix))
+        return _NewtonState(newton, optx.RESULTS.promote(result),
+                            _Previous(y, matrix.normal_point, matrix.gradient))
 
     def step(self, step_size, state):
         return -step_size * state.newton, state.result
 
 
 class _DampedState(eqx.Module):
-    point: tuple[Array, Array, Array]  # GaussNewtonMatrix.at_point
+    point: tuple[Array, Array, Array, Array]  # GaussNewtonMatrix.at_point
+    step: tuple[Array, Array, Array]  # _Previous.step_to
+    previous: _Previous
 
 
 class StructuredDampedNewtonDescent(_StructuredDescent):
     """`optimistix.DampedNewtonDescent` (Levenberg-Marquardt's): the damping
     `1 / step_size` is added to the structured Gauss-Newton matrix, still
-    preconditioned by `N^{-1}` (which suits the small damping near a solution)."""
+    preconditioned by `N^{-1}` (which suits the small damping near a solution), and
+    the solve deflated by the previous step."""
 
     def init(self, y, f_info_struct):
         del f_info_struct
-        # The first step is always accepted, so this state is never read: zeros.
+        # The first step is always accepted, so this state's step is never taken: zeros.
         shapes = jax.eval_shape(lambda: GaussNewtonMatrix.at(self.problem, self.factor, y).at_point())
-        return _DampedState(jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes))
+        zeros = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
+        no_step = (jnp.zeros_like(y), jnp.zeros_like(y), jnp.zeros((), y.dtype))
+        return _DampedState(zeros, no_step, self._previous(y))
 
     def query(self, y, f_info, state):
-        del state
-        return _DampedState(self._matrix(y, f_info).at_point())
+        matrix = self._matrix(y, f_info)
+        return _DampedState(matrix.at_point(), state.previous.step_to(y, matrix),
+                            _Previous(y, matrix.normal_point, matrix.gradient))
 
     def step(self, step_size, state):
         matrix = GaussNewtonMatrix(self.problem, self.factor, *state.point)
         # optimistix's damping, 1 / step_size, capped where the step size vanishes.
         dtype = matrix.gradient.dtype
         damping = (1 / jnp.maximum(step_size, jnp.finfo(dtype).eps)).astype(dtype)
-        x, result = matrix.solve(self.cg_rtol, self.cg_steps, damping)
+        x, result = self._solve(matrix, state.step, damping)
         return -x, optx.RESULTS.promote(result)
 
 
@@ -110,14 +149,19 @@ class DoglegDescent(optx.DoglegDescent):
         return dogleg_init(y, f_info_struct)
 
 
+class _DoglegState(eqx.Module):
+    dogleg: Any  # optimistix's
+    previous: _Previous
+
+
 class StructuredDoglegDescent(_StructuredDescent):
-    """`optimistix.DoglegDescent` with its Newton point by `GaussNewtonMatrix.solve`; its
-    Cauchy point and the step between them are optimistix's (`|J g|^2` from optimistix's
-    Jacobian: one product, and exact where `N` less the rotations would cancel in
-    float32)."""
+    """`optimistix.DoglegDescent` with its Newton point by `GaussNewtonMatrix.solve`,
+    deflated by the previous step; its Cauchy point and the step between them are
+    optimistix's (`|J g|^2` from optimistix's Jacobian: one product, and exact where
+    `N` less the rotations would cancel in float32)."""
 
     def init(self, y, f_info_struct):
-        return dogleg_init(y, f_info_struct)
+        return _DoglegState(dogleg_init(y, f_info_struct), self._previous(y))
 
     def query(self, y, f_info, state):
         matrix = self._matrix(y, f_info)
@@ -126,13 +170,14 @@ class StructuredDoglegDescent(_StructuredDescent):
         denom_nonzero = denom > jnp.finfo(denom.dtype).eps
         scaling = jnp.where(denom_nonzero, jnp.sum(grad**2) / jnp.where(denom_nonzero, denom, 1),
                             0.0)
-        newton, result = matrix.solve(self.cg_rtol, self.cg_steps)
+        newton, result = self._solve(matrix, state.previous.step_to(y, matrix))
         cauchy = -scaling * grad
-        return eqx.tree_at(
-            lambda s: (s.newton, s.cauchy, s.newton_norm, s.cauchy_norm, s.result), state,
+        dogleg = eqx.tree_at(
+            lambda s: (s.newton, s.cauchy, s.newton_norm, s.cauchy_norm, s.result), state.dogleg,
             (-newton, cauchy, optx.two_norm(newton), optx.two_norm(cauchy),
              optx.RESULTS.promote(result)),
         )
+        return _DoglegState(dogleg, _Previous(y, matrix.normal_point, matrix.gradient))
 
     def step(self, step_size, state):
-        return optx.DoglegDescent().step(step_size, state)
+        return optx.DoglegDescent().step(step_size, state.dogleg)

@@ -21,10 +21,14 @@ versions did) gathers and scatters the mean value rows too and forms every row's
 derivative: with the same iterates, Gauss-Newton, Dogleg and Levenberg-Marquardt took
 1.25 to 1.35 times as long to the same energy gap on the horse.
 
-The rotations leave `J^T J` soft where `N` is stiff, so the iteration still needs several
-steps: 8 by default. Its first iterate points along the fixed-G step (`N^{-1} J^T r` is
-`V` less the fixed-G step from `V`), and later ones improve on it within the
-Gauss-Newton model.
+The rotations leave `J^T J` soft where `N` is stiff, so the iteration would need tens of
+steps to solve the system; a truncated Newton step runs 4 by default. Its first iterate
+points along the fixed-G step (`N^{-1} J^T r` is `V` less the fixed-G step from `V`), and
+later ones improve on it within the Gauss-Newton model. The soft directions that a
+truncated solve leaves out are what the steps keep returning to, and the last step
+carries them: each solve is also deflated by it (`GaussNewtonMatrix.solve`), which
+takes Gauss-Newton on the horse from 110 steps to 32 with 4 iterations (and from 28
+with 8 plain ones), at about 1.3 fixed-G steps more per step.
 
 Gradients through a solve need the Hessian of the energy at the solution instead:
 `HessianCG` solves with it by the same preconditioned conjugate gradients, so that the
@@ -52,8 +56,9 @@ def _dot(a, b):
 UNROLL_STEPS = 16
 
 
-def conjugate_gradient(matvec, b, precondition, rtol: float, max_steps: int):
-    """Preconditioned conjugate gradients for `A x = b` from `x = 0`.
+def conjugate_gradient(matvec, b, precondition, rtol: float, max_steps: int, deflation=None):
+    """Preconditioned conjugate gradients for `A x = b` from `x = 0`, or deflated by one
+    vector.
 
     `matvec(p, q)` returns `A p`, given beside each direction `p` the product
     `q = P^{-1} p` with the inverse of the preconditioner `P` (`precondition`), which
@@ -61,19 +66,65 @@ def conjugate_gradient(matvec, b, precondition, rtol: float, max_steps: int):
     residual): an operator of the form `P^{-1} - C` then costs only its correction `C`.
     Other operators ignore `q`.
 
+    `deflation`, `(w, A w, P^{-1} w)`, adds the vector `w` to the search space (the
+    deflated conjugate gradients of Saad, Yeung, Erhel and Guyomarc'h, 2000, with one
+    vector): the iteration starts from the best multiple of `w` and keeps its
+    directions `A`-conjugate to `w`, so that after `k` steps `x` minimises
+    `x^T A x / 2 - b^T x` over `w` and a Krylov space of dimension `k`. A `w` of zero
+    curvature (zero, or in the kernel of `A`) deflates nothing; a `w` that solves the
+    system ends it at the start. Each step costs one more inner product. A fourth
+    element, a curvature `c` along `w`, raises `w^T A w` to `c` where it is larger: the
+    iteration is then that of `A + (c - w^T A w) (A w)(A w)^T / (w^T A w)^2`, the same
+    operator on the directions conjugate to `w`.
+
     `A` must be symmetric positive semidefinite and `P` symmetric positive definite
     (pytrees of arrays in, the same out). Stops after `max_steps` or when the
-    preconditioned residual norm has fallen by `rtol`; a direction of zero or negative
-    curvature ends the iteration instead of dividing by it. Budgets of at most
-    `UNROLL_STEPS` iterations (a truncated Newton step) run unrolled, the stopping test
-    a mask: on the CPU that saves about a third of a Gauss-Newton step's fixed cost.
+    preconditioned residual norm has fallen by `rtol` from its start; a direction of
+    zero or negative curvature ends the iteration instead of dividing by it. Budgets of
+    at most `UNROLL_STEPS` iterations (a truncated Newton step) run unrolled, the
+    stopping test a mask: on the CPU that saves about a third of a Gauss-Newton step's
+    fixed cost.
 
     Returns:
         `(x, steps)`.
     """
-    z = precondition(b)
-    gamma0 = _dot(b, z)
-    stop = (rtol**2) * gamma0
+    def axpy(a, x, y):
+        return jax.tree.map(lambda xi, yi: a * xi + yi, x, y)
+
+    if deflation is None:
+        x = jax.tree.map(jnp.zeros_like, b)
+        residual = b
+        floor = 0.0
+
+        def conjugate_to_w(z, r):
+            return z, r
+    else:
+        w, aw, uw, *observed = deflation
+        waw = _dot(w, aw)
+        inverse = jnp.where(waw > 0, 1 / jnp.where(waw > 0, waw, 1), 0)
+        along = _dot(w, b)
+        start = along * inverse
+        residual = axpy(-start, aw, b)
+        if observed:
+            # The raised operator has `w^T A w` at `c` and `A w` scaled to match: the same
+            # residual, from a shorter start.
+            curvature = jnp.maximum(waw, observed[0])
+            start = along * jnp.where(curvature > 0, 1 / jnp.where(curvature > 0, curvature, 1), 0)
+        x = jax.tree.map(lambda wi: start * wi, w)
+        # Where w already solves the system, what is left of the residual is rounding:
+        # stop below the start's decrease of the quadratic at round-off, rather than
+        # iterate on noise.
+        floor = jnp.finfo(inverse.dtype).eps * along**2 * inverse
+
+        def conjugate_to_w(z, r):
+            # `z - s w`, conjugate to `w`, and `P^{-1}` of it (`P^{-1} z` is `r`).
+            s = _dot(aw, z) * inverse
+            return axpy(-s, w, z), axpy(-s, uw, r)
+
+    z = precondition(residual)
+    gamma0 = _dot(residual, z)
+    stop = jnp.maximum((rtol**2) * gamma0, floor)
+    direction, unpreconditioned = conjugate_to_w(z, residual)
 
     def cond(carry):
         k, _, _, _, _, gamma = carry
@@ -85,18 +136,17 @@ def conjugate_gradient(matvec, b, precondition, rtol: float, max_steps: int):
         curvature = _dot(direction, q)
         ok = curvature > 0
         alpha = jnp.where(ok, gamma / jnp.where(ok, curvature, 1), 0)
-        x = jax.tree.map(lambda xi, di: xi + alpha * di, x, direction)
-        residual = jax.tree.map(lambda ri, qi: ri - alpha * qi, residual, q)
+        x = axpy(alpha, direction, x)
+        residual = axpy(-alpha, q, residual)
         z = precondition(residual)
         gamma_next = _dot(residual, z)
         beta = gamma_next / jnp.where(gamma > 0, gamma, 1)
-        direction = jax.tree.map(lambda zi, di: zi + beta * di, z, direction)
-        unpreconditioned = jax.tree.map(lambda ri, ui: ri + beta * ui, residual,
-                                        unpreconditioned)
+        z, r = conjugate_to_w(z, residual)
+        direction = axpy(beta, direction, z)
+        unpreconditioned = axpy(beta, unpreconditioned, r)
         return k + 1, x, residual, direction, unpreconditioned, jnp.where(ok, gamma_next, 0)
 
-    zero = jax.tree.map(jnp.zeros_like, b)
-    carry = (jnp.zeros((), jnp.int32), zero, b, z, b, gamma0)
+    carry = (jnp.zeros((), jnp.int32), x, residual, direction, unpreconditioned, gamma0)
     if max_steps <= UNROLL_STEPS:
         # A few iterations (a truncated Newton step): unrolled, with the stopping test
         # as a mask, so that XLA fuses across iterations instead of running a loop.
@@ -130,6 +180,7 @@ class GaussNewtonMatrix(eqx.Module):
         softness: `(m,)` `W_r c_r (2 - c_r)`, what the rotation takes off each row's
             weight across it (zero for the handle rows, which have no rest length).
         gradient: `(2, n)` `J^T r`, half the gradient of the scaled energy.
+        normal_point: `(2, n)` `N y`, the point times `N` (a term of the gradient).
     """
 
     problem: ScaledProblem
@@ -137,6 +188,7 @@ class GaussNewtonMatrix(eqx.Module):
     turn: Complex[Array, " m"]
     softness: Float[Array, " m"]
     gradient: Float[Array, "2 n"]
+    normal_point: Float[Array, "2 n"]
 
     @classmethod
     def at(cls, problem: ScaledProblem, factor: AbstractFactor, y: Float[Array, "2 n"],
@@ -145,24 +197,41 @@ class GaussNewtonMatrix(eqx.Module):
         unless given)."""
         at = problem.linearise(y) if linearisation is None else linearisation
         weight = problem.row_weight**2
-        gradient = factor.multiply_normal(y) - problem.stencils_transpose(
-            weight * (at.turned + problem.offset))
+        normal_point = factor.multiply_normal(y)
+        gradient = normal_point - problem.stencils_transpose(weight * (at.turned + problem.offset))
         return cls(problem, factor, turn=at.turn, softness=weight * at.scale * (2 - at.scale),
-                   gradient=gradient)
+                   gradient=gradient, normal_point=normal_point)
 
-    def at_point(self) -> tuple[Array, Array, Array]:
-        """What depends on the point (`turn`, `softness`, `gradient`): what a descent
-        carries from step to step, instead of the problem and the factor again."""
-        return self.turn, self.softness, self.gradient
+    def at_point(self) -> tuple[Array, Array, Array, Array]:
+        """What depends on the point (`turn`, `softness`, `gradient`, `normal_point`):
+        what a descent carries from step to step, instead of the problem and the factor
+        again."""
+        return self.turn, self.softness, self.gradient, self.normal_point
 
     def correction(self, x: Float[Array, "2 n"]) -> Float[Array, "2 n"]:
         """`N x - J^T J x`: the rotation terms."""
         across = jnp.real(jnp.conj(self.turn) * self.problem.stencils(x))
         return self.problem.stencils_transpose(self.softness * across * self.turn)
 
-    def solve(self, rtol: float, max_steps: int, damping=0.0):
+    def solve(self, rtol: float, max_steps: int, damping=0.0, previous=None):
         """`(J^T J + damping I)^{-1} J^T r` by conjugate gradients preconditioned by
         `N^{-1}`, truncated after `max_steps` iterations or a relative decrease `rtol`.
+
+        `previous`, `(d, N d, c)`, is the step that led here (this point less the one
+        before, `N` times it, and the curvature observed along it, `d` times the change
+        of the gradient `J^T r` over it). The rotations make the Gauss-Newton matrix
+        soft in a few directions that `N^{-1}` does not see, that a truncated solve
+        leaves out, and that the steps then keep returning to: the last step carries
+        them. So the solve is deflated by `d` (`conjugate_gradient`): it searches along
+        `d` as well as the Krylov space. Along `d` the Gauss-Newton model can be far too
+        soft where the residuals are large (it leaves out their second derivatives),
+        and a step that trusts it overshoots, backtracks, and zig-zags (the dogleg, whose
+        trust region does not bind there, crawled: 99 steps to the gap on the
+        character). So the model's curvature along `d` is raised to the observed one
+        where that is larger: the matrix solved with is then `J^T J` plus a rank-one
+        term along `J^T J d`, positive semidefinite, and the same on the directions
+        conjugate to `d`. On the horse, with 4 iterations, Gauss-Newton reaches the
+        energy gap of the benchmark in 32 steps instead of 110.
 
         Returns:
             `(x, result)`: a breakdown when it could not leave zero with a nonzero
@@ -173,8 +242,12 @@ class GaussNewtonMatrix(eqx.Module):
         def matvec(p, normal_p):
             return normal_p - self.correction(p) + damping * p
 
+        deflation = None
+        if previous is not None:
+            d, normal_d, observed = previous
+            deflation = (d, matvec(d, normal_d), normal_d, observed + damping * _dot(d, d))
         x, _ = conjugate_gradient(matvec, self.gradient, self.factor.solve_normal,
-                                  rtol, max_steps)
+                                  rtol, max_steps, deflation)
         g = self.gradient
         stuck = (_dot(x, x) == 0) & (_dot(g, g) > 0)
         return x, lx.RESULTS.where(stuck, lx.RESULTS.breakdown, lx.RESULTS.successful)

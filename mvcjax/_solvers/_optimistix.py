@@ -52,14 +52,22 @@ class _OptimistixLeastSquares(AbstractSolver):
             a 1e-6 energy gap), refused above 1 GiB.
         cg_steps, cg_rtol: the conjugate-gradient budget per step and its relative
             tolerance (`"cg"` only).
+        cg_deflate: also search along the previous step in each step's conjugate
+            gradients (deflated by it, `"cg"` only), with the model's curvature along it
+            raised to the curvature observed over it where that is larger
+            (`GaussNewtonMatrix.solve`). With it, 4 iterations a step reach the energy
+            gap of the benchmark on the horse in 32 to 35 steps; without, 4 take 110 to
+            122 and 8 take 28 to 55. `False` solves with the Gauss-Newton matrix itself
+            (exact steps with a large `cg_steps`).
     """
 
     rtol: float | None = eqx.field(default=None, static=True)
     atol: float | None = eqx.field(default=None, static=True)
     max_steps: int = eqx.field(default=256, static=True)
     linear_solver: str = eqx.field(default="cg", static=True)
-    cg_steps: int = eqx.field(default=8, static=True)
+    cg_steps: int = eqx.field(default=4, static=True)
     cg_rtol: float = eqx.field(default=1e-2, static=True)
+    cg_deflate: bool = eqx.field(default=True, static=True)
 
     def __check_init__(self):
         if self.linear_solver not in LINEAR_SOLVERS:
@@ -89,7 +97,8 @@ class _OptimistixLeastSquares(AbstractSolver):
                 "atol": default_tol(dtype) if self.atol is None else self.atol}
         if self.linear_solver == "cg":
             return _StructuredGaussNewton(
-                **tols, descent=structured(problem, factor, self.cg_steps, self.cg_rtol),
+                **tols, descent=structured(problem, factor, self.cg_steps, self.cg_rtol,
+                                   self.cg_deflate),
                 search=search, problem=problem)
         return _GaussNewtonFamily(**tols, descent=descent, search=search)
 
