@@ -171,10 +171,10 @@ fig.suptitle("horse: the energy (6) against step and against time")
 plt.show()
 
 # %% [markdown]
-# The structured Gauss-Newton steps cost 10 to 20 fixed-G steps each, depending on the
-# solver and the run (a dense Jacobian with Cholesky costs hundreds, see the table
-# below), and they get to the gap in tens of steps where fixed-G needs thousands. Anderson's steps cost about three plain
-# ones, and it needs a twentieth of them.
+# The structured Gauss-Newton steps cost about 7 to 12 fixed-G steps each, depending on
+# the solver and the run (a dense Jacobian with Cholesky costs hundreds, see the table
+# below), and they get to the gap in tens of steps where fixed-G needs thousands.
+# Anderson's steps cost about three plain ones, and it needs a twentieth of them.
 #
 # The energy is not convex: from the same start the solvers can settle in different
 # stationary points (on this drag they all find the same one). `tests/test_solvers.py`
