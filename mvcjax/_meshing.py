@@ -83,7 +83,10 @@ def triangulate_shape(
     for p in handles[on_boundary]:
         _insert_on_boundary(rings, p, tol)
     max_area = np.sqrt(3.0) / 4.0 * spacing**2
-    out, _ = _triangulate(rings, handles[~on_boundary], f"pq28a{max_area:.17g}Q")
+    # Triangle reads the area switch as plain digits: an exponent ("a6.8e-05") would be
+    # read as another switch, and the area constraint lost.
+    area = np.format_float_positional(max_area, trim="-")
+    out, _ = _triangulate(rings, handles[~on_boundary], f"pq28a{area}Q")
     verts, faces = np.asarray(out["vertices"], np.float64), np.asarray(out["triangles"], np.int64)
     handle_idx = cKDTree(verts).query(handles)[1]
     return verts, _counter_clockwise(verts, faces), handle_idx.astype(np.int64)

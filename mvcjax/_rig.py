@@ -11,8 +11,11 @@ from jaxtyping import Array, Float, Int
 
 from . import _coordinates as coords
 from . import _meshing as meshing
-from ._energy import Energy, Weights, rigid_start
+from scipy.spatial import cKDTree
+
+from ._energy import Energy, Weights, rigid_start, total_energy
 from ._factor import AbstractFactor, make_factor
+from ._frame import Frame, bounding_frame, check_representable, frame_array
 from ._shape import Shape
 from ._solvers import AbstractSolver, FixedG
 
@@ -80,19 +83,50 @@ class Skinning(eqx.Module):
         ].add(self.weights)
 
 
-def _default_float():
-    return jnp.asarray(0.0).dtype
+def _check_dtype(dtype):
+    """The rig's float dtype: float32 or float64, float64 only under 64-bit JAX."""
+    if dtype is None:
+        return jnp.asarray(0.0).dtype
+    try:
+        dt = np.dtype(dtype)
+    except TypeError:
+        raise TypeError(f"dtype={dtype!r} is not a dtype; use jnp.float32 or jnp.float64.") from None
+    if dt not in (np.dtype(np.float32), np.dtype(np.float64)):
+        raise ValueError(
+            f"dtype={dt.name}: a rig is float32 or float64 (lower precisions cannot hold the "
+            "solve, complex numbers are not coordinates); use jnp.float32 or jnp.float64."
+        )
+    if dt == np.float64 and not jax.config.jax_enable_x64:
+        raise ValueError(
+            "dtype=float64 needs 64-bit JAX, which is off: call "
+            "jax.config.update('jax_enable_x64', True) at the start of your program (mvcjax "
+            "never changes it), or use dtype=jnp.float32."
+        )
+    return jnp.dtype(dt)
+
+
+def _as_points(points, name: str, rows: str = "k") -> np.ndarray:
+    """`(rows, 2)` real, finite float64 points, or an error naming `name`."""
+    try:
+        array = np.asarray(points)
+    except ValueError:
+        raise ValueError(f"{name} must be an array of shape ({rows}, 2) of (x, y) points; got "
+                         "a ragged sequence.") from None
+    if array.dtype.kind not in "iuf":
+        kind = {"c": "complex numbers", "b": "booleans"}.get(array.dtype.kind, array.dtype.name)
+        raise TypeError(f"{name} must hold real (x, y) numbers, got {kind}; pass a float array "
+                        f"of shape ({rows}, 2).")
+    array = array.astype(np.float64)
+    if array.ndim != 2 or array.shape[1] != 2 or len(array) == 0:
+        raise ValueError(f"{name} must be an array of shape ({rows}, 2) with at least one (x, y) "
+                         f"point, got shape {array.shape}.")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"{name} contain NaN or infinite coordinates; give finite (x, y) points.")
+    return array
 
 
 def _check_handles(shape: Shape, handles) -> np.ndarray:
-    handles = np.asarray(handles, dtype=np.float64)
-    if handles.ndim != 2 or handles.shape[1] != 2 or len(handles) == 0:
-        raise ValueError(
-            f"handles must be an array of shape (h, 2) with at least one (x, y) point, got "
-            f"shape {handles.shape}."
-        )
-    if not np.all(np.isfinite(handles)):
-        raise ValueError("handles contain NaN or infinite coordinates.")
+    handles = _as_points(handles, "handles", "h")
     tol = 1e-6 * shape.diagonal
     poly = shape.polygon
     dist = shapely.distance(shapely.points(handles), poly)
@@ -103,27 +137,74 @@ def _check_handles(shape: Shape, handles) -> np.ndarray:
             f"{dist[i]:.4g}); put it on or inside the shape, e.g. at its closest point "
             f"{near.round(6).tolist()} (Shape.closest_point)."
         )
-    gap = np.linalg.norm(handles[:, None] - handles[None], axis=2)
-    np.fill_diagonal(gap, np.inf)
-    i, j = np.unravel_index(np.argmin(gap), gap.shape)
-    if gap[i, j] <= tol:
-        raise ValueError(
-            f"handles[{min(i, j)}] and handles[{max(i, j)}] are at the same spot "
-            f"{handles[i].tolist()}; remove one of them."
-        )
+    if len(handles) > 1:
+        tree = cKDTree(handles)
+        pairs = tree.query_pairs(tol, output_type="ndarray")
+        if len(pairs):
+            i, j = sorted(pairs[0].tolist())
+            raise ValueError(
+                f"handles[{i}] and handles[{j}] are at the same spot {handles[i].tolist()}; "
+                "remove one of them."
+            )
     return handles
 
 
-def _spacings(shape: Shape, shape_spacing, control_spacing, margin):
-    unit = np.sqrt(shape.area)
-    control_spacing = unit / 8.0 if control_spacing is None else float(control_spacing)
-    shape_spacing = unit / 40.0 if shape_spacing is None else float(shape_spacing)
-    margin = control_spacing / 3.0 if margin is None else float(margin)
-    for name, value in [("shape_spacing", shape_spacing), ("control_spacing", control_spacing),
-                        ("margin", margin)]:
-        if not np.isfinite(value) or value <= 0:
-            raise ValueError(f"{name} must be a positive length, got {value}.")
+def _length(value, name: str) -> float | None:
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a length (a positive number), got {value!r}.")
+    if not np.isfinite(value) or value <= 0:
+        raise ValueError(f"{name} must be a positive length (finite), got {value}.")
+    return float(value)
+
+
+def _thickness(shape: Shape) -> float:
+    """About how thick the shape is: twice its area over its perimeter (a bar's width, a
+    disc's radius)."""
+    polygon = shape.polygon
+    return 2.0 * polygon.area / polygon.length
+
+
+def _spacings(local: Shape, scale: float, shape_spacing, control_spacing, margin):
+    """The meshes' lengths in the rig's frame: the user's, or defaults that follow the
+    shape's size and, for thin shapes, its thickness."""
+    unit = np.sqrt(local.area)
+    given = [_length(v, n) for v, n in [(shape_spacing, "shape_spacing"),
+                                         (control_spacing, "control_spacing"),
+                                         (margin, "margin")]]
+    shape_spacing, control_spacing, margin = (None if v is None else v / scale for v in given)
+    if control_spacing is None:
+        control_spacing = unit / 8.0
+    if shape_spacing is None:
+        shape_spacing = min(unit / 40.0, _thickness(local) / 2.0)
+    if margin is None:
+        margin = control_spacing / 3.0
     return shape_spacing, control_spacing, margin
+
+
+def _check_mesh_size(local: Shape, shape_spacing: float, scale: float, max_triangles: int):
+    """Refuse, before meshing, a shape mesh larger than `max_triangles`.
+
+    A quality mesh has triangles about `shape_spacing` across, and no larger than the
+    shape is thick (its angles stay above 28 degrees), so the count is about the area
+    over the area of such a triangle.
+    """
+    size = min(shape_spacing, _thickness(local))
+    estimate = local.area / (np.sqrt(3.0) / 4.0 * size**2)
+    if estimate > max_triangles:
+        if shape_spacing <= _thickness(local):
+            fix = (f"pass a larger shape_spacing (about {shape_spacing * scale * np.sqrt(estimate / max_triangles):.3g} "
+                   "for that many)")
+        else:
+            fix = ("thicken the shape (its triangles cannot be larger than it is thick, "
+                   f"about {_thickness(local) * scale:.3g}; e.g. shape.polygon.buffer)")
+        raise ValueError(
+            f"The shape mesh would have about {estimate:,.0f} triangles (shape_spacing "
+            f"{shape_spacing * scale:.3g}, over an area of {local.area * scale**2:.3g}), more "
+            f"than max_triangles={max_triangles:,}: {fix}, or raise max_triangles if that is "
+            "what you want."
+        )
 
 
 def _laplacian_index(loops: list[np.ndarray]) -> np.ndarray:
@@ -141,12 +222,25 @@ def _loops_and_inner(vertices, faces):
 
 
 def _control_from_arrays(control, handles, tol):
-    vertices, faces = control
-    vertices, faces = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
-    if vertices.ndim != 2 or vertices.shape[1] != 2 or faces.ndim != 2 or faces.shape[1] != 3:
+    if not (isinstance(control, (tuple, list)) and len(control) == 2):
+        raise TypeError(
+            f"control must be None, 'shape' or a (vertices, faces) pair, got {control!r}."
+        )
+    vertices = _as_points(control[0], "control vertices", "c")
+    try:
+        faces = np.asarray(control[1])
+    except ValueError:
+        faces = np.asarray([], object)
+    if faces.dtype.kind not in "iu" or faces.ndim != 2 or faces.shape[1] != 3:
         raise ValueError(
-            "control must be (vertices, faces) with vertices of shape (c, 2) and faces of "
-            f"shape (f, 3), got {vertices.shape} and {faces.shape}."
+            "control faces must be an integer array of shape (f, 3), vertex indices of each "
+            f"triangle, got {faces.dtype.name} of shape {faces.shape}."
+        )
+    faces = faces.astype(np.int64)
+    if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
+        raise ValueError(
+            f"control faces index vertices {faces.min()} to {faces.max()}, but there are "
+            f"{len(vertices)} control vertices; indices run from 0 to {len(vertices) - 1}."
         )
     faces = meshing._counter_clockwise(vertices, faces)
     loops, inner = _loops_and_inner(vertices, faces)
@@ -161,6 +255,34 @@ def _control_from_arrays(control, handles, tol):
     return vertices, faces, loops, inner, idx
 
 
+def _check_rig(shape_vertices, control_vertices, control_faces, skin_index, skin_weight):
+    """What every rig must satisfy, checked once at build time: a failure is a bug, and an
+    error now instead of a NaN later."""
+    a, b, c = (control_vertices[control_faces[:, k]] for k in range(3))
+    area = coords._cross(b - a, c - a)
+    problems = []
+    flat = area <= 1e-14 * np.abs(area).max(initial=0.0)
+    if flat.any():
+        problems.append(f"{int(flat.sum())} control triangles have no area")
+    if not np.all(np.isfinite(skin_weight)):
+        problems.append(f"{int(np.sum(~np.isfinite(skin_weight).all(axis=1)))} skinning rows "
+                        "are not finite")
+    else:
+        sums = skin_weight.sum(axis=1)
+        if np.abs(sums - 1).max() > 1e-9:
+            problems.append(f"skinning rows sum to {sums.min():.6g}..{sums.max():.6g}, not 1")
+        carried = np.einsum("nk,nkd->nd", skin_weight, control_vertices[skin_index])
+        miss = np.linalg.norm(carried - shape_vertices, axis=1).max()
+        if miss > 1e-8:
+            problems.append(f"the skinning misses the rest shape by {miss:.3g} of the diagonal")
+    if problems:
+        raise ValueError(
+            "The rig failed its build check (" + "; ".join(problems) + "). This is a bug in "
+            "mvcjax: please report it with the shape and handles. Meanwhile another "
+            "shape_spacing, control_spacing or skinning may avoid it."
+        )
+
+
 class Rig(eqx.Module):
     """A shape ready to deform: both meshes, the skinning weights and the solver's data.
 
@@ -168,13 +290,19 @@ class Rig(eqx.Module):
     `jax.vmap` and `jax.grad` like any other argument. New targets or new weights
     (`with_weights`) never trigger a recompilation; only new array shapes do.
 
+    The meshes are in the user's coordinates; the energy, the factor and the solves work
+    in the shape's own frame (centred, unit diagonal: `frame`), so that results do not
+    depend on where the shape sits or how large it is. Targets go in, and vertices come
+    out, in the user's coordinates.
+
     Attributes:
         shape_mesh: the dense mesh that is drawn.
         control_mesh: the small mesh that is solved.
         skinning: the weights carrying the shape mesh (`V_S = W V_C`).
-        energy: the data and weights of the energy (6).
+        energy: the data and weights of the energy (6), in the rig's frame.
         factor: the precomputed global step of the fixed-G iteration (the paper's dense
             `G`, or a sparse factor of the normal matrix for large control meshes).
+        frame: the map between the user's coordinates and the rig's.
     """
 
     shape_mesh: ShapeMesh
@@ -182,6 +310,7 @@ class Rig(eqx.Module):
     skinning: Skinning
     energy: Energy
     factor: AbstractFactor
+    frame: Frame
 
     @classmethod
     def build(
@@ -197,14 +326,19 @@ class Rig(eqx.Module):
         skinning: str = "blended",
         factor: str | None = None,
         dtype=None,
+        max_triangles: int = 400_000,
     ) -> Rig:
         """Mesh the shape, build the control mesh, and precompute everything.
+
+        Lengths are in the shape's units; the defaults follow the shape's size, so that a
+        shape gets the same meshes wherever it sits and however large it is.
 
         Args:
             shape: the shape to deform.
             handles: `(h, 2)` handle points, on or inside the shape.
-            shape_spacing: edge length of the shape mesh (default: `sqrt(area) / 60`,
-                about 2.3k vertices on a compact shape).
+            shape_spacing: edge length of the shape mesh (default: `sqrt(area) / 40`,
+                about 6k vertices on a compact shape, or half the shape's thickness,
+                twice its area over its perimeter, if that is smaller).
             control_spacing: spacing of the inner control vertices and longest edge of
                 the control polygon (default: `sqrt(area) / 8`).
             margin: how far outside the shape the control polygon runs, where no gap is
@@ -226,34 +360,55 @@ class Rig(eqx.Module):
                 recomputed inside `jit` when weights change), `"sparse"` (a sparse LU of
                 the normal matrix, for meshes of thousands of vertices), or `None` (by
                 size: dense up to 1000 control vertices).
-            dtype: float dtype of the rig's arrays (default: JAX's default float).
+            dtype: `jnp.float32` or `jnp.float64` (default: JAX's default float; float64
+                needs `jax_enable_x64`).
+            max_triangles: refuse, before meshing, a shape mesh estimated to have more
+                triangles than this (a small spacing or a thin shape can ask for
+                millions); raise it if you mean it.
         """
         if not isinstance(shape, Shape):
             raise TypeError(
                 f"shape must be an mvcjax.Shape, got {type(shape).__name__}; build one with "
                 "Shape.from_polygon(outer, holes) or Shape.from_image(mask)."
             )
+        dtype = _check_dtype(dtype)
         handles = _check_handles(shape, handles)
-        shape_spacing, control_spacing, margin = _spacings(
-            shape, shape_spacing, control_spacing, margin
-        )
         weights = Weights() if weights is None else weights
-        dtype = _default_float() if dtype is None else jnp.dtype(dtype)
-
-        shape_vertices, shape_faces, shape_handles = meshing.triangulate_shape(
-            shape, shape_spacing, handles
-        )
+        if not isinstance(weights, Weights):
+            raise TypeError(
+                f"weights must be an mvcjax.Weights, got {type(weights).__name__}; write e.g. "
+                "mvcjax.Weights(handle=10.0)" + (" or mvcjax.Weights(**weights)"
+                                                 if isinstance(weights, dict) else "") + "."
+            )
         if skinning not in SKINNINGS:
             raise ValueError(f"skinning must be one of {SKINNINGS}, got {skinning!r}.")
-        if isinstance(control, str) and control == "shape":
-            return cls._full(shape_vertices, shape_faces, shape_handles, weights, factor, dtype,
-                             shape.diagonal)
-        if isinstance(control, str):
-            raise ValueError(
-                f"control must be None, 'shape' or (vertices, faces), got {control!r}."
+        if isinstance(max_triangles, bool) or not isinstance(max_triangles, (int, np.integer)) \
+                or max_triangles < 1:
+            raise ValueError(f"max_triangles must be a positive integer, got {max_triangles!r}.")
+        if not (control is None or isinstance(control, (tuple, list))
+                or (isinstance(control, str) and control == "shape")):
+            raise TypeError(
+                f"control must be None, 'shape' or a (vertices, faces) pair, got {control!r}."
             )
+
+        centre, scale = bounding_frame(shape.outer)
+        check_representable(centre, scale, dtype)
+        local = Shape.from_polygon((shape.outer - centre) / scale,
+                                   [(h - centre) / scale for h in shape.holes])
+        local_handles = (handles - centre) / scale
+        shape_spacing, control_spacing, margin = _spacings(
+            local, scale, shape_spacing, control_spacing, margin
+        )
+        _check_mesh_size(local, shape_spacing, scale, max_triangles)
+        shape_vertices, shape_faces, shape_handles = meshing.triangulate_shape(
+            local, shape_spacing, local_handles
+        )
+        frame = (centre, scale)
+        if isinstance(control, str):
+            return cls._full(shape_vertices, shape_faces, shape_handles, weights, factor, dtype,
+                             frame)
         if control is None:
-            loops = meshing.control_polygon(shape, margin, control_spacing)
+            loops = meshing.control_polygon(local, margin, control_spacing)
             inner_shape = meshing.inner_control_vertices(
                 shape_vertices, shape_handles, loops, control_spacing
             )
@@ -268,47 +423,51 @@ class Rig(eqx.Module):
             control_vertices, control_faces, loops, inner, control_handles = _control_from_arrays(
                 control, handles, 1e-6 * shape.diagonal
             )
+            control_vertices = (control_vertices - centre) / scale
 
         skin_index, skin_weight = _skinning_weights(
             shape_vertices, control_vertices, control_faces, skinning
         )
+        _check_rig(shape_vertices, control_vertices, control_faces, skin_index, skin_weight)
         return cls._assemble(
             (shape_vertices, shape_faces, shape_handles),
             (control_vertices, control_faces, loops, inner, control_handles),
-            (skin_index, skin_weight), weights, factor, dtype, shape.diagonal,
+            (skin_index, skin_weight), weights, factor, dtype, frame,
         )
 
     @classmethod
-    def _full(cls, vertices, faces, handles, weights, factor, dtype, diagonal) -> Rig:
+    def _full(cls, vertices, faces, handles, weights, factor, dtype, frame) -> Rig:
         """The shape mesh as its own control mesh, carried by the identity."""
         loops, inner = _loops_and_inner(vertices, faces)
         identity = (np.arange(len(vertices))[:, None], np.ones((len(vertices), 1)))
         return cls._assemble(
             (vertices, faces, handles),
             (vertices, faces, loops, inner, handles),
-            identity, weights, factor, dtype, diagonal,
+            identity, weights, factor, dtype, frame,
         )
 
     @classmethod
-    def _assemble(cls, shape_mesh, control_mesh, skinning, weights, factor, dtype, diagonal):
+    def _assemble(cls, shape_mesh, control_mesh, skinning, weights, factor, dtype, frame):
+        """The rig from its parts, all in the rig's frame (`frame = (centre, scale)` maps
+        them back to the user's coordinates)."""
         shape_vertices, shape_faces, shape_handles = shape_mesh
         control_vertices, control_faces, loops, inner, control_handles = control_mesh
+        centre, scale = frame
         energy = _energy_data(
             control_vertices, control_faces, loops, inner, control_handles, weights, dtype,
-            diagonal,
         )
         as_int = lambda a: jnp.asarray(a, jnp.int32)  # noqa: E731
+        world = lambda v: jnp.asarray(v * scale + centre, dtype)  # noqa: E731
         return cls(
-            shape_mesh=ShapeMesh(
-                jnp.asarray(shape_vertices, dtype), as_int(shape_faces), as_int(shape_handles)
-            ),
+            shape_mesh=ShapeMesh(world(shape_vertices), as_int(shape_faces), as_int(shape_handles)),
             control_mesh=ControlMesh(
-                jnp.asarray(control_vertices, dtype), as_int(control_faces),
+                world(control_vertices), as_int(control_faces),
                 as_int(np.concatenate(loops)), as_int(inner), as_int(control_handles),
             ),
             skinning=Skinning(as_int(skinning[0]), jnp.asarray(skinning[1], dtype)),
             energy=energy,
             factor=make_factor(energy, factor),
+            frame=frame_array(centre, scale, dtype),
         )
 
     # ---- using the rig --------------------------------------------------------------
@@ -324,15 +483,15 @@ class Rig(eqx.Module):
         Recomputes the factor: with a dense `G` this is jittable and differentiable (no
         recompilation); a sparse factor is refactored on the host, outside `jit`.
         """
+        if not isinstance(weights, Weights):
+            raise TypeError(f"weights must be an mvcjax.Weights, got {type(weights).__name__}.")
         energy = eqx.tree_at(lambda e: e.weights, self.energy, weights.astype(self.energy.rest.dtype))
         return eqx.tree_at(lambda r: (r.energy, r.factor), self, (energy, self.factor.rebuild(energy)))
 
-    def start(self, targets: Float[Array, "h 2"], init="rigid") -> Float[Array, "c 2"]:
-        """Starting control vertices: `"rigid"` (the rest mesh moved rigidly to fit the
-        targets), `"rest"` (the paper's), or an explicit `(c, 2)` array."""
+    def _local_start(self, local_targets, init):
         if isinstance(init, str):
             if init == "rigid":
-                return rigid_start(self.energy, targets)
+                return rigid_start(self.energy, local_targets)
             if init == "rest":
                 return self.energy.rest
             raise ValueError(f"init must be 'rigid', 'rest' or an array, got {init!r}.")
@@ -341,19 +500,46 @@ class Rig(eqx.Module):
             raise ValueError(
                 f"init must have the control mesh's shape {self.energy.rest.shape}, got {init.shape}."
             )
-        return init
+        return self.frame.to_local(init)
+
+    def start(self, targets: Float[Array, "h 2"], init="rigid") -> Float[Array, "c 2"]:
+        """Starting control vertices: `"rigid"` (the rest mesh moved rigidly to fit the
+        targets), `"rest"` (the paper's), or an explicit `(c, 2)` array."""
+        targets = self._check_targets(targets)
+        return self.frame.to_world(self._local_start(self.frame.to_local(targets), init))
 
     def _check_targets(self, targets) -> Float[Array, "h 2"]:
-        targets = jnp.asarray(targets)
         h = self.energy.handles.shape[0]
+        if not isinstance(targets, jax.core.Tracer):
+            # Concrete targets (also when closed over inside jit) are checked on the host.
+            try:
+                host = np.asarray(targets)
+            except ValueError:
+                raise ValueError(f"targets must be an array of shape ({h}, 2); got a ragged "
+                                 "sequence.") from None
+            if host.dtype.kind not in "iuf":
+                raise TypeError(f"targets must be real (x, y) numbers, got {host.dtype.name}; "
+                                f"pass a float array of shape ({h}, 2).")
+            if host.shape == (h, 2) and not np.all(np.isfinite(host)):
+                raise ValueError("targets contain NaN or infinite values; give finite (x, y) "
+                                 "targets.")
+        targets = jnp.asarray(targets)
+        if not jnp.issubdtype(targets.dtype, jnp.floating) and not jnp.issubdtype(
+                targets.dtype, jnp.integer):
+            raise TypeError(f"targets must be real (x, y) numbers, got {targets.dtype.name}.")
         if targets.shape != (h, 2):
             raise ValueError(
                 f"targets must have shape ({h}, 2), one (x, y) per handle, got {targets.shape}; "
-                "for several frames, use jax.vmap over a leading axis."
+                "for several frames, use jax.vmap over a leading axis or mvcjax.deform_frames."
             )
-        if not isinstance(targets, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(targets))):
-            raise ValueError("targets contain NaN or infinite values; give finite (x, y) targets.")
         return targets.astype(self.energy.rest.dtype)
+
+    def _check_solver(self, solver) -> None:
+        if not isinstance(solver, AbstractSolver):
+            raise TypeError(
+                f"solver must be an mvcjax solver such as mvcjax.FixedG() or "
+                f"mvcjax.GaussNewton(), got {solver!r}."
+            )
 
     def solve(
         self,
@@ -374,13 +560,8 @@ class Rig(eqx.Module):
         Returns:
             `(c, 2)` control vertices, and the `SolveInfo` if asked for.
         """
-        if not isinstance(solver, AbstractSolver):
-            raise TypeError(
-                f"solver must be an mvcjax solver such as mvcjax.FixedG() or "
-                f"mvcjax.GaussNewton(), got {solver!r}."
-            )
-        targets = self._check_targets(targets)
-        vertices, info = solver.solve(self.energy, self.factor, targets, self.start(targets, init))
+        self._check_solver(solver)
+        vertices, info = _solve(self, self._check_targets(targets), solver, init)
         return (vertices, info) if return_info else vertices
 
     def energy_history(
@@ -403,16 +584,27 @@ class Rig(eqx.Module):
             steps: how many steps to record.
             init: the start, see `Rig.start`.
         """
-        if not isinstance(solver, AbstractSolver):
-            raise TypeError(f"solver must be an mvcjax solver such as mvcjax.FixedG(), got {solver!r}.")
+        self._check_solver(solver)
+        if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)):
+            raise TypeError(f"steps must be an int, got {steps!r}.")
         if steps < 1:
             raise ValueError(f"steps must be at least 1, got {steps}.")
-        targets = self._check_targets(targets)
-        return solver.history(self.energy, self.factor, targets, self.start(targets, init), steps)
+        targets = self.frame.to_local(self._check_targets(targets))
+        history = solver.history(self.energy, self.factor, targets,
+                                 self._local_start(targets, init), steps)
+        return history * self.frame.scale**2
+
+    def energy_at(self, control_vertices: Float[Array, "c 2"],
+                  targets: Float[Array, "h 2"]) -> Float[Array, ""]:
+        """The energy (6) of control vertices for these targets, in the user's units
+        (what `SolveInfo.energy` reports)."""
+        local = self.frame.to_local
+        return total_energy(self.energy, local(control_vertices),
+                            local(self._check_targets(targets))) * self.frame.scale**2
 
     def skin(self, control_vertices: Float[Array, "c 2"]) -> Float[Array, "n 2"]:
         """Shape-mesh vertices carried by the control vertices (`V_S = W V_C`)."""
-        return self.skinning(control_vertices)
+        return self.frame.to_world(self.skinning(self.frame.to_local(control_vertices)))
 
     def deform(
         self,
@@ -423,8 +615,8 @@ class Rig(eqx.Module):
         return_info: bool = False,
     ):
         """Solve, then skin: the deformed shape-mesh vertices `(n, 2)` (and the info)."""
-        vertices, info = self.solve(targets, solver, init=init, return_info=True)
-        shape = self.skin(vertices)
+        self._check_solver(solver)
+        shape, info = _deform(self, self._check_targets(targets), solver, init)
         return (shape, info) if return_info else shape
 
     def __repr__(self) -> str:
@@ -435,6 +627,30 @@ class Rig(eqx.Module):
             f"polygon, {self.control_mesh.inner.shape[0]} inner), "
             f"{self.control_mesh.handles.shape[0]} handles)"
         )
+
+
+def _solve_local(rig: Rig, targets, solver: AbstractSolver, init):
+    """The solve in the rig's frame: local control vertices, and the info with the energy
+    in the user's units."""
+    local_targets = rig.frame.to_local(targets)
+    vertices, info = solver.solve(rig.energy, rig.factor, local_targets,
+                                  rig._local_start(local_targets, init))
+    info = eqx.tree_at(lambda i: i.energy, info, info.energy * rig.frame.scale**2)
+    return vertices, info
+
+
+# The rig is an argument, never closed over: a new rig of the same sizes reuses the
+# compiled program instead of compiling (and keeping) one of its own.
+@eqx.filter_jit
+def _solve(rig: Rig, targets, solver: AbstractSolver, init):
+    vertices, info = _solve_local(rig, targets, solver, init)
+    return rig.frame.to_world(vertices), info
+
+
+@eqx.filter_jit
+def _deform(rig: Rig, targets, solver: AbstractSolver, init):
+    vertices, info = _solve_local(rig, targets, solver, init)
+    return rig.frame.to_world(rig.skinning(vertices)), info
 
 
 SKINNINGS = ("mvc", "blended", "barycentric")
@@ -503,7 +719,8 @@ def _merge_duplicates(index, weight):
     return merged_index, merged_weight
 
 
-def _energy_data(vertices, faces, loops, inner, handles, weights, dtype, diagonal) -> Energy:
+def _energy_data(vertices, faces, loops, inner, handles, weights, dtype) -> Energy:
+    """The energy's data for a control mesh in the rig's frame (unit diagonal)."""
     lap_index = _laplacian_index(loops)
     lap_vectors = vertices[lap_index[:, 0]] - 0.5 * (
         vertices[lap_index[:, 1]] + vertices[lap_index[:, 2]]
@@ -531,5 +748,5 @@ def _energy_data(vertices, faces, loops, inner, handles, weights, dtype, diagona
         edge_length=jnp.asarray(edge_length, dtype),
         handles=as_int(handles),
         weights=weights.astype(dtype),
-        scale=jnp.asarray(diagonal, dtype),
+        scale=jnp.asarray(1.0, dtype),
     )

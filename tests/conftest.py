@@ -54,11 +54,25 @@ def directional_derivatives(f, x, seed=0, h=1e-5):
 
 def scipy_minimum(rig, targets, start, method="lm"):
     """The energy's minimum near `start` by scipy.optimize.least_squares (an independent
-    reference): control vertices `(c, 2)` and the energy there."""
-    fun = jax.jit(lambda x: mvcjax.residuals(rig.energy, x.reshape(-1, 2), targets))
+    reference): control vertices `(c, 2)` and the energy there, in the user's units (the
+    rig's energy is in its own frame)."""
+    local_targets = rig.frame.to_local(targets)
+    fun = jax.jit(lambda x: mvcjax.residuals(rig.energy, x.reshape(-1, 2), local_targets))
     jac = jax.jit(jax.jacfwd(fun))
     result = scipy.optimize.least_squares(
-        lambda x: np.asarray(fun(x)), np.asarray(start).ravel(), jac=lambda x: np.asarray(jac(x)),
+        lambda x: np.asarray(fun(x)), np.asarray(rig.frame.to_local(start)).ravel(),
+        jac=lambda x: np.asarray(jac(x)),
         method=method, xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=5000,
     )
-    return result.x.reshape(-1, 2), 2 * result.cost
+    scale = float(rig.frame.scale)
+    return np.asarray(rig.frame.to_world(result.x.reshape(-1, 2))), 2 * result.cost * scale**2
+
+
+def local_point(rig, offsets, noise=0.0, seed=0):
+    """For tests of the solvers' internals, which work in the rig's frame: the local
+    targets of a drag by `offsets` and the rigid start for them, perturbed by `noise`
+    (in units of the rest diagonal)."""
+    targets = drag(rig, offsets)
+    start = rig.frame.to_local(rig.start(targets))
+    start = start + noise * jax.random.normal(jax.random.key(seed), start.shape, start.dtype)
+    return rig.frame.to_local(targets), start

@@ -18,7 +18,7 @@ from mvcjax._solvers._descents import (
 from mvcjax._solvers._least_squares import ScaledProblem, StructuredJacobian
 from mvcjax._solvers._optimistix import _GaussNewtonFamily
 
-from conftest import drag
+from conftest import drag, local_point
 
 CHOLESKY = lx.Normal(lx.Cholesky())
 # CG to convergence (a looped budget), so that the steps are exact and comparable.
@@ -34,10 +34,9 @@ PAIRS = {
 @pytest.fixture(scope="module")
 def point(horse_rig):
     # A dragged, perturbed point, and optimistix's view of it (residuals and Jacobian).
-    targets = drag(horse_rig, np.array([[60.0, -10.0]] + [[0.0, 0.0]] * 4))
+    targets, start = local_point(horse_rig, [[60.0, -10.0]] + [[0.0, 0.0]] * 4, 1e-3, seed=5)
     problem = ScaledProblem(horse_rig.energy, targets)
-    start = horse_rig.start(targets)
-    y = problem.scaled(start + 0.5 * jax.random.normal(jax.random.key(5), start.shape))
+    y = problem.scaled(start)
     return horse_rig, problem, y, autodiff_info(problem, y)
 
 
@@ -78,9 +77,9 @@ def test_structured_descent_steps_are_optimistix_steps(point, name, step_size, i
 def test_structured_descents_keep_float32(horse, point):
     # In float32 (with jax_enable_x64 on) every state and step stays float32.
     rig32 = mvcjax.Rig.build(horse, mvcjax.datasets.horse_handles(), dtype=jnp.float32)
-    targets = drag(rig32, np.array([[60.0, -10.0]] + [[0.0, 0.0]] * 4))
+    targets, start = local_point(rig32, [[60.0, -10.0]] + [[0.0, 0.0]] * 4)
     problem = ScaledProblem(rig32.energy, targets)
-    y = problem.scaled(rig32.start(targets))
+    y = problem.scaled(start)
     f_info = structured_info(problem, y)
     for structured, _ in PAIRS.values():
         descent = structured(problem, rig32.factor, cg_steps=8, cg_rtol=1e-2)
@@ -97,9 +96,9 @@ def test_structured_loop_is_optimistix_gauss_newton_loop(horse_rig, solver):
     # The structured loop (closed-form linearisation, point data carried) against
     # optimistix's own `AbstractGaussNewton` loop with the same descent and search: the
     # same iterates, accepted and rejected steps, and stopping step.
-    targets = drag(horse_rig, np.array([[60.0, -10.0]] + [[0.0, 0.0]] * 4))
+    targets, start = local_point(horse_rig, [[60.0, -10.0]] + [[0.0, 0.0]] * 4)
     problem = ScaledProblem(horse_rig.energy, targets)
-    y0 = problem.scaled(horse_rig.start(targets))
+    y0 = problem.scaled(start)
     structured = solver._configured(problem, horse_rig.factor, y0.dtype)
     stock = _GaussNewtonFamily(rtol=structured.rtol, atol=structured.atol,
                                descent=structured.descent, search=structured.search)

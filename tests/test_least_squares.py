@@ -9,16 +9,15 @@ import pytest
 import mvcjax
 from mvcjax._solvers._least_squares import ScaledProblem, StructuredJacobian
 
-from conftest import drag
+from conftest import local_point
 
 
 @pytest.fixture(scope="module")
 def problem(horse_rig):
-    targets = drag(horse_rig, np.array([[60.0, -10.0]] + [[0.0, 0.0]] * 4))
     weights = mvcjax.Weights(laplacian=2.0, mvc=0.5, length=3.0, handle=40.0)
-    energy = horse_rig.with_weights(weights).energy
-    vertices = energy.rest + jax.random.normal(jax.random.key(1), energy.rest.shape)
-    return ScaledProblem(energy, targets), vertices
+    rig = horse_rig.with_weights(weights)
+    targets, vertices = local_point(rig, [[60.0, -10.0]] + [[0.0, 0.0]] * 4, 2e-3, seed=1)
+    return ScaledProblem(rig.energy, targets), vertices
 
 
 def test_scaling_round_trips(problem):

@@ -12,7 +12,7 @@ from mvcjax._solvers import _normal_cg
 from mvcjax._solvers._least_squares import ScaledProblem
 from mvcjax._solvers._normal_cg import GaussNewtonMatrix, conjugate_gradient
 
-from conftest import drag
+from conftest import drag, local_point
 
 
 def test_conjugate_gradient_solves_a_positive_definite_system():
@@ -176,12 +176,11 @@ def test_deflated_conjugate_gradient_edge_cases():
 def gauss_newton(horse_rig):
     # The structured matrix at a dragged, perturbed point, and the residuals' own
     # linearisation there (jax.linearize and its transpose), the reference.
-    targets = drag(horse_rig, np.array([[60.0, -10.0]] + [[0.0, 0.0]] * 4))
     weights = mvcjax.Weights(laplacian=2.0, mvc=0.5, length=3.0, handle=40.0)
     rig = horse_rig.with_weights(weights)
+    targets, start = local_point(rig, [[60.0, -10.0]] + [[0.0, 0.0]] * 4, 1e-3, seed=3)
     problem = ScaledProblem(rig.energy, targets)
-    start = rig.start(targets)
-    y = problem.scaled(start + 0.5 * jax.random.normal(jax.random.key(3), start.shape))
+    y = problem.scaled(start)
     r, linear = jax.linearize(problem.residuals, y)
     return rig, problem, y, r, linear, GaussNewtonMatrix.at(problem, rig.factor, y)
 
