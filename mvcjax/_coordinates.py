@@ -55,7 +55,12 @@ def mean_value_coordinates(
     on_edge &= np.take_along_axis(~at_vertex, nxt, axis=1)
 
     with np.errstate(divide="ignore", invalid="ignore"):
-        tan_half = np.where(valid & ~on_edge, det / (r * r_next + dot), 0.0)
+        # tan(alpha / 2) = det / (r r' + d) = (r r' - d) / det: the first cancels where
+        # the angle nears pi (a point close to a long edge of a thin triangle gave 0 / 0),
+        # the second where it nears 0; take the one whose denominator does not cancel.
+        rr = r * r_next
+        tan_half = np.where(dot >= 0, det / (rr + dot), (rr - dot) / det)
+        tan_half = np.where(valid & ~on_edge, tan_half, 0.0)
         tan_prev = np.take_along_axis(tan_half, prv, axis=1)
         lam = np.where(valid, (tan_prev + tan_half) / r, 0.0)
         weights = lam / lam.sum(axis=1, keepdims=True)

@@ -138,11 +138,30 @@ def length_scale(squared_length: Array, length: Array) -> Array:
     return jnp.where(nonzero, length * jax.lax.rsqrt(jnp.where(nonzero, squared_length, 1.0)), 0.0)
 
 
+class StepData(eqx.Module):
+    """What a solve's targets fix for every fixed-G step (`AbstractFactor.handle_part`).
+
+    Steps are taken relative to the rest mesh, which is a fixed point for the rest
+    targets: `V' = V_rest + G (b(V) - b(V_rest))`. In float32 the plain `V' = G b(V)`
+    rounds `G b` at every step, and 15 steps left the rest shape by 6e-5 of its diagonal
+    on a comb; relative to rest, the rest targets give the rest shape exactly, and the
+    rounding scales with the deformation.
+
+    Attributes:
+        rest_local: `(m,)` `[delta; e]` at the rest mesh, as the step computes it.
+        constant: `(2, n)` the rest mesh and the targets' share of the step.
+    """
+
+    rest_local: Complex[Array, " m"]
+    constant: Float[Array, "2 n"]
+
+
 class AbstractFactor(eqx.Module):
     """The global step, precomputed for one set of weights.
 
     The local-step data is shared: the merged Laplacian and edge rows (`rows`, `coef`)
-    and their rest lengths (`length`).
+    and their rest lengths (`length`), and the rest mesh (`rest`) and its handles, which
+    steps are taken relative to (`StepData`).
 
     Steps take and return the vertices coordinate-major, as the rows `V^T` of shape
     `(2, n)`: products then run as `(2, m) @ (m, n)`, which XLA's CPU backend does faster
@@ -153,20 +172,24 @@ class AbstractFactor(eqx.Module):
     rows: eqx.AbstractVar[Int[Array, "m 3"]]
     coef: eqx.AbstractVar[Float[Array, "m 3"]]
     length: eqx.AbstractVar[Float[Array, " m"]]
+    rest: eqx.AbstractVar[Float[Array, "2 n"]]
+    handles: eqx.AbstractVar[Int[Array, " h"]]
 
     def local_targets(self, columns: Float[Array, "2 n"]) -> Complex[Array, " m"]:
         """`[delta(V); e(V)]`: each Laplacian and edge vector turned to its rest length."""
         y = apply_stencils(self.rows, self.coef, columns)
         return y * length_scale(jnp.real(y) ** 2 + jnp.imag(y) ** 2, self.length)
 
-    @abc.abstractmethod
-    def handle_part(self, targets: Float[Array, "h 2"]) -> Float[Array, "2 n"]:
-        """What the handle targets contribute to every step (computed once per solve)."""
+    def target_shift(self, targets: Float[Array, "h 2"]) -> Float[Array, "2 h"]:
+        """The handle targets less the handles' rest positions, coordinate-major."""
+        return targets.T - self.rest[:, self.handles]
 
     @abc.abstractmethod
-    def step(
-        self, columns: Float[Array, "2 n"], handle_part: Float[Array, "2 n"]
-    ) -> Float[Array, "2 n"]:
+    def handle_part(self, targets: Float[Array, "h 2"]) -> StepData:
+        """What the handle targets fix for every step (computed once per solve)."""
+
+    @abc.abstractmethod
+    def step(self, columns: Float[Array, "2 n"], handle_part: StepData) -> Float[Array, "2 n"]:
         """One fixed-G iteration `G b(V)` on the vertices' coordinate rows `V^T`, given
         `handle_part(targets)`."""
 
@@ -197,7 +220,7 @@ class DenseFactor(AbstractFactor):
         handle: `(n, h)` the columns acting on the handle targets.
         normal: `(n, n)` the normal matrix `N = A^T W A`.
         normal_inverse: `(n, n)` `N^{-1}`, where `G = N^{-1} A^T W`.
-        rows, coef, length: the local step's rows (see `AbstractFactor`).
+        rows, coef, length, rest, handles: see `AbstractFactor`.
     """
 
     shape: Float[Array, "m n"]
@@ -207,13 +230,16 @@ class DenseFactor(AbstractFactor):
     rows: Int[Array, "m 3"]
     coef: Float[Array, "m 3"]
     length: Float[Array, " m"]
+    rest: Float[Array, "2 n"]
+    handles: Int[Array, " h"]
 
     def handle_part(self, targets):
-        return targets.T @ self.handle.T
+        return StepData(self.local_targets(self.rest),
+                        self.rest + self.target_shift(targets) @ self.handle.T)
 
     def step(self, columns, handle_part):
-        b = self.local_targets(columns)
-        return jnp.stack([jnp.real(b), jnp.imag(b)]) @ self.shape + handle_part
+        b = self.local_targets(columns) - handle_part.rest_local
+        return jnp.stack([jnp.real(b), jnp.imag(b)]) @ self.shape + handle_part.constant
 
     def solve_normal(self, rhs):
         return rhs @ self.normal_inverse  # N^{-1} is symmetric
@@ -242,7 +268,7 @@ def dense_factor(energy: Energy) -> DenseFactor:
     return DenseFactor(
         shape=g[:, :split].T, handle=g[:, split:], normal=normal,
         normal_inverse=jax.scipy.linalg.cho_solve(cho, jnp.eye(normal.shape[0], dtype=normal.dtype)),
-        rows=rows, coef=coef, length=rest_length,
+        rows=rows, coef=coef, length=rest_length, rest=energy.rest.T, handles=energy.handles,
     )
 
 
@@ -274,11 +300,11 @@ class SparseFactor(AbstractFactor):
     """`N = A^T W A` factored once on the host; steps solve `N V = A^T W b(V)`.
 
     Attributes:
-        rows, coef, length: the local step's rows (see `AbstractFactor`).
+        rows, coef, length, rest, handles: see `AbstractFactor`.
         row_weight: `(m,)` the weight of each local row (Laplacian or length weight).
         normal_rows, normal_cols, normal_values: `N` as triplets, for the matrix-vector
             product that `custom_linear_solve` differentiates through.
-        handles: `(h,)` the handles' vertices; `handle_weight` their weight.
+        handle_weight: the handles' weight.
         host: the host-side sparse LU of `N` (static).
     """
 
@@ -289,6 +315,7 @@ class SparseFactor(AbstractFactor):
     normal_rows: Int[Array, " nnz"]
     normal_cols: Int[Array, " nnz"]
     normal_values: Float[Array, " nnz"]
+    rest: Float[Array, "2 n"]
     handles: Int[Array, " h"]
     handle_weight: Float[Array, ""]
     host: _HostSolve = eqx.field(static=True)
@@ -307,15 +334,17 @@ class SparseFactor(AbstractFactor):
         return jax.lax.custom_linear_solve(self._multiply, rhs, solve, symmetric=True)
 
     def handle_part(self, targets):
+        # Here the constant is the targets' share of the right-hand side, C^T W (U - U_rest).
         n = self.host.size
-        return jnp.zeros((2, n), targets.dtype).at[:, self.handles].add(
-            self.handle_weight * targets.T)
+        return StepData(self.local_targets(self.rest), jnp.zeros((2, n), targets.dtype).at[
+            :, self.handles].add(self.handle_weight * self.target_shift(targets)))
 
     def step(self, columns, handle_part):
         # A^T W t: scatter each row's weighted target back onto its vertices.
-        t = self.row_weight * self.local_targets(columns)
+        t = self.row_weight * (self.local_targets(columns) - handle_part.rest_local)
         z = apply_stencils_transpose(self.rows, self.coef, t, self.host.size)
-        return self._solve(jnp.stack([jnp.real(z), jnp.imag(z)], axis=1) + handle_part.T).T
+        rhs = jnp.stack([jnp.real(z), jnp.imag(z)], axis=1) + handle_part.constant.T
+        return self.rest + self._solve(rhs).T
 
     def solve_normal(self, rhs):
         return self._solve(rhs.T).T
@@ -357,6 +386,7 @@ def sparse_factor(energy: Energy) -> SparseFactor:
         normal_rows=as_int(normal.row),
         normal_cols=as_int(normal.col),
         normal_values=jnp.asarray(normal.data, dtype),
+        rest=energy.rest.T,
         handles=energy.handles,
         handle_weight=jnp.asarray(w.handle, dtype),
         host=_HostSolve(normal.tocsc()),

@@ -34,7 +34,11 @@ def _fixed_g_frames_last(rig: Rig, targets, solver: FixedG):
     """
     factor = rig.factor
     start = jnp.moveaxis(jax.vmap(lambda t: rig._local_start(t, "rigid"))(targets), 0, -1)
-    handle_part = jnp.einsum("nh,hdf->ndf", factor.handle, jnp.moveaxis(targets, 0, -1))
+    # Relative to rest, as `DenseFactor.step` (see `StepData`).
+    shift = jnp.moveaxis(jax.vmap(factor.target_shift)(targets), 0, -1)
+    constant = factor.rest[..., None] + jnp.einsum("nh,dhf->dnf", factor.handle, shift)
+    constant = jnp.moveaxis(constant, 0, 1)  # (n, 2, frames)
+    rest_local = factor.local_targets(factor.rest)
 
     def local(coordinate):
         # One gather per stencil column, of whole rows of frames: faster than a single
@@ -45,8 +49,9 @@ def _fixed_g_frames_last(rig: Rig, targets, solver: FixedG):
     def step(_, xy):
         x, y = local(xy[:, 0]), local(xy[:, 1])
         scale = length_scale(x * x + y * y, factor.length[:, None])
-        return jnp.einsum("mn,mdf->ndf", factor.shape,
-                          jnp.stack([x * scale, y * scale], axis=1)) + handle_part
+        b = jnp.stack([x * scale - jnp.real(rest_local)[:, None],
+                       y * scale - jnp.imag(rest_local)[:, None]], axis=1)
+        return jnp.einsum("mn,mdf->ndf", factor.shape, b) + constant
 
     return jax.lax.fori_loop(0, solver.iterations, step, start)
 

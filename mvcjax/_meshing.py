@@ -64,6 +64,28 @@ def _insert_on_boundary(rings: list[np.ndarray], point: np.ndarray, tol: float):
     rings[r] = np.insert(ring, k + 1, point, axis=0)
 
 
+DETAIL = 1e-3
+
+
+def thin_outline(shape: Shape, spacing: float) -> Shape:
+    """The shape with its outline simplified by at most `DETAIL * spacing`, where it has
+    more than four vertices per `spacing` on average.
+
+    An outline far denser than the meshes (a contour of 100,000 points) would be kept
+    whole by Triangle, which grades the mesh down to its vertices, and walked point by
+    point by the control polygon; a thousandth of an edge is no visible change.
+    """
+    polygon = shape.polygon
+    if sum(len(r) for r in shape.rings) < 4 * polygon.length / spacing:
+        return shape  # not denser than the mesh: every vertex kept
+    outline = shapely.simplify(polygon, DETAIL * spacing, preserve_topology=True)
+    try:
+        return Shape.from_polygon(np.asarray(outline.exterior.coords)[:-1],
+                                  [np.asarray(r.coords)[:-1] for r in outline.interiors])
+    except (ValueError, AttributeError):  # simplified into something else: keep it whole
+        return shape
+
+
 def triangulate_shape(
     shape: Shape, spacing: float, handles: Float[np.ndarray, "h 2"]
 ) -> tuple[Float[np.ndarray, "n 2"], Int[np.ndarray, "f 3"], Int[np.ndarray, " h"]]:
@@ -78,7 +100,9 @@ def triangulate_shape(
     """
     tol = 1e-9 * shape.diagonal
     boundary = shapely.MultiLineString([np.vstack([r, r[:1]]) for r in shape.rings])
-    on_boundary = shapely.distance(shapely.points(handles), boundary) <= 1e-6 * shape.diagonal
+    # Within twice `thin_outline`'s detail: a handle on the outline before it was thinned.
+    near_boundary = max(1e-6 * shape.diagonal, 2 * DETAIL * spacing)
+    on_boundary = shapely.distance(shapely.points(handles), boundary) <= near_boundary
     rings = [_resample_ring(r, spacing) for r in shape.rings]
     for p in handles[on_boundary]:
         _insert_on_boundary(rings, p, tol)
@@ -100,6 +124,9 @@ def _counter_clockwise(verts, faces):
     return faces
 
 
+MAX_SAMPLES = 200_000
+
+
 def _gap_cuts(shape: Shape, margin: float, step: float | None = None):
     """Pieces of the exterior medial axis closer than `margin` to the shape.
 
@@ -112,11 +139,27 @@ def _gap_cuts(shape: Shape, margin: float, step: float | None = None):
     one concave corner, which an offset may round off). The samples are refined until
     they are denser than the narrowest gap found, so that the axis is smooth.
 
+    Ridges between samples across the shape itself (the interior medial axis of a thin
+    part) are no gap, and are left out before the narrowest gap is measured.
+
     Returns:
         the cut as shapely lines (or None where no gap is narrower than `2 * margin`),
         and the narrowest gap width found.
     """
-    step = margin / 4.0 if step is None else step
+    perimeter = sum(float(np.linalg.norm(np.roll(r, -1, axis=0) - r, axis=1).sum())
+                    for r in shape.rings)
+    if step is None:
+        step = margin / 4.0
+        if perimeter / step > MAX_SAMPLES:
+            raise ValueError(
+                f"margin={margin:.3g} (in units of the shape's diagonal) is too small for the "
+                f"control polygon to trace: its gap search would sample the outline "
+                f"{perimeter / step:,.0f} times. Use a margin of at least "
+                f"{4 * perimeter / MAX_SAMPLES:.2g} times the shape's diagonal."
+            )
+    # Refining past this many samples would take minutes; gaps narrower than the samples
+    # are still cut, only more coarsely.
+    step = max(step, perimeter / MAX_SAMPLES)
     samples, ring_id, arc, length = [], [], [], []
     for r, ring in enumerate(shape.rings):
         pts = _resample_ring(ring, step)
@@ -126,7 +169,9 @@ def _gap_cuts(shape: Shape, margin: float, step: float | None = None):
         arc.append(np.concatenate([[0.0], np.cumsum(seg)[:-1]]))
         length.append(np.full(len(pts), seg.sum()))
     pts, ring_id, arc, length = map(np.concatenate, (samples, ring_id, arc, length))
-    vor = Voronoi(pts)
+    # Joggled: samples along parallel sides are cocircular by the thousand, on which
+    # Qhull's exact merging takes minutes (17 s for 20k samples of a thin strip).
+    vor = Voronoi(pts, qhull_options="Qbb Qc QJ")
     a, b = vor.ridge_points[:, 0], vor.ridge_points[:, 1]
     along = np.abs(arc[a] - arc[b])
     along = np.minimum(along, length[a] - along)
@@ -134,6 +179,8 @@ def _gap_cuts(shape: Shape, margin: float, step: float | None = None):
     half_gap = 0.5 * np.linalg.norm(pts[a] - pts[b], axis=1)
     reach = 1.05 * margin
     keep = far & (half_gap < reach)
+    mid = 0.5 * (pts[a] + pts[b])
+    keep[keep] = ~shapely.contains_xy(shape.polygon, mid[keep, 0], mid[keep, 1])
     if not keep.any():
         return None, np.inf
     a, b, half_gap = a[keep], b[keep], half_gap[keep]
@@ -154,8 +201,9 @@ def _gap_cuts(shape: Shape, margin: float, step: float | None = None):
     if not ok.any():
         return None, np.inf
     narrowest = 2.0 * float(half_gap[ok].min())
-    if step > narrowest / 2.0 and step > 1e-3 * margin:
-        return _gap_cuts(shape, margin, max(narrowest / 4.0, 1e-3 * margin))
+    finer = max(narrowest / 4.0, 1e-3 * margin, perimeter / MAX_SAMPLES)
+    if step > narrowest / 2.0 and finer < step:
+        return _gap_cuts(shape, margin, finer)
     lines = np.stack([mid + t0[:, None] * u, mid + t1[:, None] * u], axis=1)[ok]
     cut = shapely.multilinestrings(lines).difference(shape.polygon)
     return (None, np.inf) if cut.is_empty else (cut, narrowest)

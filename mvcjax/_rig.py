@@ -400,6 +400,7 @@ class Rig(eqx.Module):
             local, scale, shape_spacing, control_spacing, margin
         )
         _check_mesh_size(local, shape_spacing, scale, max_triangles)
+        local = meshing.thin_outline(local, shape_spacing)
         shape_vertices, shape_faces, shape_handles = meshing.triangulate_shape(
             local, shape_spacing, local_handles
         )
@@ -639,15 +640,33 @@ def _solve_local(rig: Rig, targets, solver: AbstractSolver, init):
     return vertices, info
 
 
-# The rig is an argument, never closed over: a new rig of the same sizes reuses the
-# compiled program instead of compiling (and keeping) one of its own.
-@eqx.filter_jit
+def _compiled_when_eager(fn):
+    """`fn(rig, targets, solver, init)`, compiled with the rig as an argument when called
+    outside any transformation, inline inside one (the caller's `jit` compiles it).
+
+    Eager calls would otherwise run op by op, compiling every loop afresh, and keep
+    those programs: about 300 memory maps per rig, until a long session ran out. As an
+    argument, never closed over, a new rig of the same sizes reuses the program. Inside
+    a transformation a nested `jit` is no faster, and jaxopt's implicit gradients leak a
+    tracer through one.
+    """
+    compiled = eqx.filter_jit(fn)
+
+    def call(rig, targets, solver, init):
+        traced = any(isinstance(leaf, jax.core.Tracer)
+                     for leaf in jax.tree.leaves((rig, targets, init)))
+        return (fn if traced else compiled)(rig, targets, solver, init)
+
+    return call
+
+
+@_compiled_when_eager
 def _solve(rig: Rig, targets, solver: AbstractSolver, init):
     vertices, info = _solve_local(rig, targets, solver, init)
     return rig.frame.to_world(vertices), info
 
 
-@eqx.filter_jit
+@_compiled_when_eager
 def _deform(rig: Rig, targets, solver: AbstractSolver, init):
     vertices, info = _solve_local(rig, targets, solver, init)
     return rig.frame.to_world(rig.skinning(vertices)), info
