@@ -66,4 +66,4 @@ def check_representable(centre: np.ndarray, scale: float, dtype) -> None:
 
 
 def frame_array(centre: np.ndarray, scale: float, dtype) -> Frame:
-    return Frame(jnp.asarray(centre, dtype), jnp.asarray(scale, dtype))
+    return Frame(jnp.asarray(np.asarray(centre, dtype)), jnp.asarray(np.asarray(scale, dtype)))

@@ -135,21 +135,46 @@ def deform_frames(
 
     Returns:
         `(frames, n, 2)` deformed shape-mesh vertices.
+
+    Targets given as arrays are checked first: frames with NaN or infinite targets are
+    refused by index. Under `jax.jit` they cannot be (the values are not known yet), and
+    such a frame comes back non-finite while the others are unaffected.
     """
-    targets = jnp.asarray(targets)
     h = rig.energy.handles.shape[0]
+    if not isinstance(targets, jax.core.Tracer):
+        host = np.asarray(targets)
+        if host.dtype.kind not in "iuf":
+            raise TypeError(f"targets must be real (x, y) numbers, got {host.dtype.name}.")
+        if host.ndim == 3 and host.shape[1:] == (h, 2):
+            bad = np.flatnonzero(~np.isfinite(host).all(axis=(1, 2)))
+            if len(bad):
+                raise ValueError(
+                    f"targets of {len(bad)} frames contain NaN or infinite values (frames "
+                    f"{bad[:10].tolist()}{' ...' if len(bad) > 10 else ''}); give finite "
+                    "targets, or drop those frames."
+                )
+    targets = jnp.asarray(targets)
     if targets.ndim != 3 or targets.shape[1:] != (h, 2):
         raise ValueError(
             f"targets must have shape (frames, {h}, 2), one (x, y) per handle and frame, got "
             f"{targets.shape}; for a single frame use rig.deform(targets)."
         )
+    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)):
+        raise TypeError(f"chunk must be a whole number of frames, got {chunk!r}.")
     if chunk < 1:
         raise ValueError(f"chunk must be a positive number of frames, got {chunk}.")
     if targets.shape[0] == 0:
         raise ValueError("targets hold no frames (shape (0, h, 2)); give at least one frame.")
+    if devices is not None:
+        devices = list(devices)
+        if not devices or not all(isinstance(d, jax.Device) for d in devices):
+            raise ValueError(
+                f"devices must be a non-empty list of JAX devices (e.g. jax.devices()), got "
+                f"{devices!r}; leave it out for the default device."
+            )
     targets = targets.astype(rig.energy.rest.dtype)
     frames = targets.shape[0]
-    devices = [jax.devices()[0]] if devices is None else list(devices)
+    devices = [jax.devices()[0]] if devices is None else devices
     if len(devices) == 1:
         return _deform_one_device(rig, targets, solver, min(chunk, frames))
     per_device = -(-frames // len(devices))

@@ -15,7 +15,10 @@ from ._shape import Shape
 def _resample_ring(ring: np.ndarray, step: float) -> np.ndarray:
     """Ring vertices plus evenly spaced points on every edge longer than `step`."""
     nxt = np.roll(ring, -1, axis=0)
-    counts = np.maximum(np.ceil(np.linalg.norm(nxt - ring, axis=1) / step).astype(int), 1)
+    # A length that is a whole number of steps must not gain a point from rounding: the
+    # same shape anywhere else would get another mesh.
+    pieces = np.linalg.norm(nxt - ring, axis=1) / step
+    counts = np.maximum(np.ceil(pieces * (1 - 1e-9)).astype(int), 1)
     t = np.concatenate([np.arange(c) / c for c in counts])
     start = np.repeat(ring, counts, axis=0)
     return start + t[:, None] * (np.repeat(nxt, counts, axis=0) - start)

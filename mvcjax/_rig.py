@@ -83,6 +83,15 @@ class Skinning(eqx.Module):
         ].add(self.weights)
 
 
+def _array(a, dtype) -> Array:
+    # Converted on the host: an XLA conversion compiles a program for every new shape.
+    return jnp.asarray(np.asarray(a, dtype=dtype))
+
+
+def _ints(a) -> Array:
+    return _array(a, np.int32)
+
+
 def _check_dtype(dtype):
     """The rig's float dtype: float32 or float64, float64 only under 64-bit JAX."""
     if dtype is None:
@@ -457,15 +466,14 @@ class Rig(eqx.Module):
         energy = _energy_data(
             control_vertices, control_faces, loops, inner, control_handles, weights, dtype,
         )
-        as_int = lambda a: jnp.asarray(a, jnp.int32)  # noqa: E731
-        world = lambda v: jnp.asarray(v * scale + centre, dtype)  # noqa: E731
+        world = lambda v: _array(v * scale + centre, dtype)  # noqa: E731
         return cls(
-            shape_mesh=ShapeMesh(world(shape_vertices), as_int(shape_faces), as_int(shape_handles)),
+            shape_mesh=ShapeMesh(world(shape_vertices), _ints(shape_faces), _ints(shape_handles)),
             control_mesh=ControlMesh(
-                world(control_vertices), as_int(control_faces),
-                as_int(np.concatenate(loops)), as_int(inner), as_int(control_handles),
+                world(control_vertices), _ints(control_faces),
+                _ints(np.concatenate(loops)), _ints(inner), _ints(control_handles),
             ),
-            skinning=Skinning(as_int(skinning[0]), jnp.asarray(skinning[1], dtype)),
+            skinning=Skinning(_ints(skinning[0]), _array(skinning[1], dtype)),
             energy=energy,
             factor=make_factor(energy, factor),
             frame=frame_array(centre, scale, dtype),
@@ -755,17 +763,16 @@ def _energy_data(vertices, faces, loops, inner, handles, weights, dtype) -> Ener
     keep = np.array([tuple(e) not in polygon_edges for e in all_edges.tolist()], bool)
     edges = all_edges[keep]
     edge_length = np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1)
-    as_int = lambda a: jnp.asarray(a, jnp.int32)  # noqa: E731
     return Energy(
-        rest=jnp.asarray(vertices, dtype),
-        laplacian_index=as_int(lap_index),
-        laplacian_length=jnp.asarray(np.linalg.norm(lap_vectors, axis=1), dtype),
-        mvc_centre=as_int(inner),
-        mvc_ring=as_int(ring),
-        mvc_weight=jnp.asarray(ring_weight, dtype),
-        edges=as_int(edges),
-        edge_length=jnp.asarray(edge_length, dtype),
-        handles=as_int(handles),
+        rest=_array(vertices, dtype),
+        laplacian_index=_ints(lap_index),
+        laplacian_length=_array(np.linalg.norm(lap_vectors, axis=1), dtype),
+        mvc_centre=_ints(inner),
+        mvc_ring=_ints(ring),
+        mvc_weight=_array(ring_weight, dtype),
+        edges=_ints(edges),
+        edge_length=_array(edge_length, dtype),
+        handles=_ints(handles),
         weights=weights.astype(dtype),
-        scale=jnp.asarray(1.0, dtype),
+        scale=_array(1.0, dtype),
     )

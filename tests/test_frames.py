@@ -59,6 +59,24 @@ def test_bad_frames_are_explained(horse_rig):
         mvcjax.deform_frames(horse_rig, jnp.zeros((0, 5, 2)))
     with pytest.raises(ValueError, match="chunk must be"):
         mvcjax.deform_frames(horse_rig, some_frames(horse_rig, 2), chunk=0)
+    with pytest.raises(TypeError, match="chunk must be a whole number"):
+        mvcjax.deform_frames(horse_rig, some_frames(horse_rig, 2), chunk=2.5)
+    with pytest.raises(ValueError, match="devices must be a non-empty list"):
+        mvcjax.deform_frames(horse_rig, some_frames(horse_rig, 2), devices=[])
+    with pytest.raises(TypeError, match="real"):
+        mvcjax.deform_frames(horse_rig, some_frames(horse_rig, 2) * 1j)
+
+
+def test_frames_with_nan_targets_are_named(horse_rig):
+    frames = np.asarray(some_frames(horse_rig, 6)).copy()
+    frames[2, 1, 0] = np.nan
+    frames[4, 0, 1] = np.inf
+    with pytest.raises(ValueError, match=r"2 frames .*\[2, 4\]"):
+        mvcjax.deform_frames(horse_rig, frames)
+    # Under jit the values are unknown: that frame alone comes back non-finite.
+    out = jax.jit(lambda t: mvcjax.deform_frames(horse_rig, t))(frames)
+    finite = np.isfinite(np.asarray(out)).all(axis=(1, 2))
+    assert finite.tolist() == [True, True, False, True, False, True]
 
 
 SHARDED = """
