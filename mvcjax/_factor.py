@@ -16,6 +16,8 @@ Two factors behind one interface (`handle_part`, `step`):
 from __future__ import annotations
 
 import abc
+import itertools
+import weakref
 
 import equinox as eqx
 import jax
@@ -272,12 +274,27 @@ def dense_factor(energy: Energy) -> DenseFactor:
     )
 
 
+# The host solves alive, by key. A callback is part of the compiled program, so the
+# program looks its factor up by a key passed as data: compiled once per size, a rig of
+# that size (a new shape, new weights) reuses it instead of compiling and keeping its own.
+_HOST_SOLVES: weakref.WeakValueDictionary[int, _HostSolve] = weakref.WeakValueDictionary()
+_HOST_KEYS = itertools.count()
+
+
+def _host_solve(key: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    # Under vmap the key is broadcast with the right-hand sides: any entry is the key.
+    return _HOST_SOLVES[int(np.asarray(key).reshape(-1)[0])](rhs)
+
+
 class _HostSolve:
     """A sparse LU of the normal matrix, applied on the host to any batch of right-hand
-    sides. Hashable by identity, so that it can be a static field of a pytree."""
+    sides. A static field of the factor: equal to any other of its size (the program
+    does not depend on which), found by `key` at run time."""
 
     def __init__(self, normal: scipy.sparse.csc_matrix):
         self.size = normal.shape[0]
+        self.key = next(_HOST_KEYS)
+        _HOST_SOLVES[self.key] = self
         # The normal matrix is symmetric positive definite: a symmetric ordering, with
         # pivoting off so that SuperLU keeps it, gives a Cholesky-like fill. With the
         # default partial pivoting, on the 19k-vertex horse the factor took 6.2 s instead
@@ -286,6 +303,12 @@ class _HostSolve:
             normal, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
             options=dict(SymmetricMode=True),
         )
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, _HostSolve) and other.size == self.size
+
+    def __hash__(self) -> int:
+        return hash((_HostSolve, self.size))
 
     def __call__(self, rhs: np.ndarray) -> np.ndarray:
         # rhs: (..., n, 2), any leading batch axes (vmap): solve them all at once as columns.
@@ -305,7 +328,7 @@ class SparseFactor(AbstractFactor):
         normal_rows, normal_cols, normal_values: `N` as triplets, for the matrix-vector
             product that `custom_linear_solve` differentiates through.
         handle_weight: the handles' weight.
-        host: the host-side sparse LU of `N` (static).
+        host: the host-side sparse LU of `N` (static); `host_key` finds it at run time.
     """
 
     rows: Int[Array, "m 3"]
@@ -318,6 +341,7 @@ class SparseFactor(AbstractFactor):
     rest: Float[Array, "2 n"]
     handles: Int[Array, " h"]
     handle_weight: Float[Array, ""]
+    host_key: Int[Array, ""]
     host: _HostSolve = eqx.field(static=True)
 
     def _multiply(self, x: Float[Array, "n 2"]) -> Float[Array, "n 2"]:
@@ -327,9 +351,8 @@ class SparseFactor(AbstractFactor):
 
     def _solve(self, rhs: Float[Array, "n 2"]) -> Float[Array, "n 2"]:
         def solve(_, b):
-            return jax.pure_callback(
-                self.host, jax.ShapeDtypeStruct(b.shape, b.dtype), b, vmap_method="broadcast_all"
-            )
+            return jax.pure_callback(_host_solve, jax.ShapeDtypeStruct(b.shape, b.dtype),
+                                     self.host_key, b, vmap_method="broadcast_all")
 
         return jax.lax.custom_linear_solve(self._multiply, rhs, solve, symmetric=True)
 
@@ -375,6 +398,7 @@ def sparse_factor(energy: Energy) -> SparseFactor:
     term_weights = [float(w.laplacian), float(w.mvc), float(w.length), float(w.handle)]
     normal = sum(t * (op.T @ op) for t, op in zip(term_weights, (lap, mvc, length, handle)))
     normal = scipy.sparse.coo_matrix(normal)
+    host = _HostSolve(normal.tocsc())
     rows, coef, rest_length, row_weight = _sparse_local_rows(energy)
     dtype = energy.rest.dtype
     as_int = lambda a: jnp.asarray(a, jnp.int32)  # noqa: E731
@@ -389,7 +413,8 @@ def sparse_factor(energy: Energy) -> SparseFactor:
         rest=energy.rest.T,
         handles=energy.handles,
         handle_weight=jnp.asarray(w.handle, dtype),
-        host=_HostSolve(normal.tocsc()),
+        host_key=jnp.asarray(np.int32(host.key)),
+        host=host,
     )
 
 

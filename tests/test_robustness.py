@@ -255,3 +255,27 @@ def test_many_rigs_of_one_size_reuse_compiled_code():
         if k in (9, 59):
             counts.append(maps())
     assert counts[1] - counts[0] < 100, counts
+
+
+def test_sparse_rigs_of_one_size_share_a_program_and_keep_their_own_factor(ring_shape):
+    # The host's sparse solve used to be a static field hashed by identity: every
+    # sparse rig compiled (and kept) programs of its own.
+    traces = []
+
+    @jax.jit
+    def deform(rig, targets):
+        traces.append(1)
+        return rig.deform(targets)
+
+    def build():
+        return mvcjax.Rig.build(ring_shape, [[35.0, 0.0], [-35.0, 0.0]], control="shape",
+                                shape_spacing=9.0, factor="sparse", dtype=jnp.float64)
+
+    first = build()
+    rigs = [first, build(), first.with_weights(mvcjax.Weights(length=5.0, handle=10.0))]
+    for rig in rigs:
+        targets = rig.handle_positions + jnp.array([[4.0, 2.0], [0.0, 0.0]])
+        np.testing.assert_allclose(deform(rig, targets), rig.deform(targets), atol=1e-9)
+        np.testing.assert_allclose(deform(rig, rig.handle_positions), rig.shape_mesh.vertices,
+                                   atol=1e-9)
+    assert len(traces) == 1
