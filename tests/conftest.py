@@ -10,6 +10,12 @@ for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_variable, "1")
 
 import jax  # noqa: E402
+from hypothesis import settings  # noqa: E402
+
+# Property tests: a few minutes at most by default; HYPOTHESIS_PROFILE=long for many more.
+settings.register_profile("default", max_examples=12, derandomize=True)
+settings.register_profile("long", max_examples=300)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 
 jax.config.update("jax_enable_x64", True)
 
