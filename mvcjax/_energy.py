@@ -16,6 +16,12 @@ def _safe_normalise(v: Float[Array, "m 2"]) -> Float[Array, "m 2"]:
     return jnp.where(nonzero, v * jax.lax.rsqrt(jnp.where(nonzero, sq, 1.0)), 0.0)
 
 
+# Beyond this ratio between two positive weights the smaller term is lost to rounding
+# in the normal matrix (float32 holds 7 digits, its squares 14).
+MAX_WEIGHT_RATIO = 1e8
+NORMAL_WEIGHT = 100.0
+
+
 class Weights(eqx.Module):
     """Weights of the four terms of the energy (6), each multiplying a squared norm.
 
@@ -44,18 +50,46 @@ class Weights(eqx.Module):
             return  # traced (under jit or grad): checked where the weights were made
         for name, value in values.items():
             v = np.asarray(value)
-            if v.shape != () or not np.isfinite(v) or v < 0:
+            if v.shape != () or v.dtype.kind not in "iuf" or not np.isfinite(v) or v < 0:
                 raise ValueError(
                     f"Weights({name}={value!r}): each weight must be a finite number >= 0."
                 )
-        if np.asarray(values["handle"]) <= 0:
+        v = {k: float(np.asarray(x)) for k, x in values.items()}
+        if v["handle"] <= 0:
             raise ValueError(
                 "Weights(handle=0) leaves the control mesh free to drift (the energy has no "
                 "unique minimum); give the handles a positive weight."
             )
+        if max(v["laplacian"], v["mvc"], v["length"]) <= 0:
+            raise ValueError(
+                "Weights(laplacian=0, mvc=0, length=0) leaves only the handles: every other "
+                "control vertex is free, so the energy has no unique minimum; give at least "
+                "one shape term a positive weight."
+            )
+        positive = {k: x for k, x in v.items() if x > 0}
+        ratio = max(positive.values()) / min(positive.values())
+        if ratio > MAX_WEIGHT_RATIO:
+            big, small = max(positive, key=positive.get), min(positive, key=positive.get)
+            raise ValueError(
+                f"Weights({big}={v[big]:g}) is {ratio:.1e} times Weights({small}={v[small]:g}): "
+                f"beyond {MAX_WEIGHT_RATIO:.0e}, the normal matrix is singular in floating "
+                "point (the smaller term is lost). Keep the weights within that ratio, or set "
+                "a term you do not want to 0 (the handles' weight must stay positive)."
+            )
 
     def astype(self, dtype) -> Weights:
         return jax.tree.map(lambda w: jnp.asarray(w, dtype), self)
+
+    def largest(self) -> Float[Array, ""]:
+        return jnp.maximum(jnp.maximum(self.laplacian, self.mvc),
+                           jnp.maximum(self.length, self.handle))
+
+    def normalised(self) -> Weights:
+        """The weights scaled so that the largest is `NORMAL_WEIGHT` (the default handle
+        weight): the same minimisers, and tolerances that mean what they mean at the
+        defaults whatever the weights' overall scale (pure JAX, so it jits)."""
+        factor = NORMAL_WEIGHT / self.largest()
+        return jax.tree.map(lambda w: w * factor, self)
 
 
 class Energy(eqx.Module):

@@ -110,7 +110,7 @@ def _local_rows(energy: Energy) -> tuple[Int[Array, "m 3"], Float[Array, "m 3"],
 def _local_row_weights(energy: Energy) -> Float[Array, " m"]:
     """The weight of each merged Laplacian and edge row (its term's), in `_local_rows`'
     order."""
-    w = energy.weights
+    w = energy.weights.normalised()
     return jnp.concatenate([
         jnp.broadcast_to(w.laplacian, energy.laplacian_index.shape[:1]),
         jnp.broadcast_to(w.length, energy.edges.shape[:1]),
@@ -257,7 +257,7 @@ class DenseFactor(AbstractFactor):
 def dense_factor(energy: Energy) -> DenseFactor:
     """Precompute `G` for the energy's weights (pure JAX: jits, differentiates)."""
     lap, mvc, length, handle = operators(energy)
-    w = energy.weights
+    w = energy.weights.normalised()  # the same G, with rounding blind to the weights' scale
     normal = (
         w.laplacian * lap.T @ lap + w.mvc * mvc.T @ mvc + w.length * length.T @ length
         + w.handle * handle.T @ handle
@@ -393,7 +393,7 @@ def sparse_factor(energy: Energy) -> SparseFactor:
             "jax.grad (new weights on a rig with a sparse factor): call rig.with_weights "
             "outside the transformation, or build the rig with factor='dense'."
         )
-    w = energy.weights
+    w = energy.weights.normalised()
     lap, mvc, length, handle = sparse_operators(energy)
     term_weights = [float(w.laplacian), float(w.mvc), float(w.length), float(w.handle)]
     normal = sum(t * (op.T @ op) for t, op in zip(term_weights, (lap, mvc, length, handle)))

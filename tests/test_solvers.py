@@ -161,7 +161,7 @@ def test_paper_start_and_rigid_start(horse_rig):
 
 
 def test_solver_errors(horse_rig):
-    with pytest.raises(ValueError, match="at least 1 iteration"):
+    with pytest.raises(ValueError, match=r"FixedG\(iterations=0\): needs at least 1"):
         mvcjax.FixedG(iterations=0)
     with pytest.raises(TypeError, match="mvcjax solver"):
         horse_rig.solve(horse_rig.handle_positions, solver="gauss-newton")
@@ -272,13 +272,12 @@ def test_implicit_gradients_match_finite_differences_and_the_unrolled_one(stick_
     assert float(grads[1]) == pytest.approx(unrolled[1], rel=1e-4)
 
 
-def test_stop_early_needs_the_implicit_adjoint_for_reverse_mode(stick_gradients):
-    # Reverse mode cannot unroll the while loop of stop_early; the implicit adjoint
-    # differentiates it at the minimum it stops at.
+def test_stop_early_differentiates_in_reverse_mode_either_way(stick_gradients):
+    # Unrolled through equinox's checkpointed loop (lax.while_loop refused reverse mode),
+    # or implicitly at the minimum it stops at.
     loss, targets, _, _, _ = stick_gradients
     early = mvcjax.FixedG(iterations=3000, stop_early=True, anderson=5)
-    with pytest.raises(ValueError, match="while_loop"):
-        jax.grad(loss, argnums=1)(early, targets, 0.0)
+    assert bool(jnp.all(jnp.isfinite(jax.grad(loss, argnums=1)(early, targets, 0.0))))
     implicit = dataclasses.replace(early, adjoint="implicit")
     assert bool(jnp.all(jnp.isfinite(jax.grad(loss, argnums=1)(implicit, targets, 0.0))))
     with pytest.raises(ValueError, match="adjoint"):

@@ -5,6 +5,8 @@ from __future__ import annotations
 import abc
 
 import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from .._energy import Energy
@@ -73,6 +75,35 @@ class AbstractSolver(eqx.Module):
         optimistix or jaxopt step (which may be a rejected trial).
         """
         raise NotImplementedError(f"{type(self).__name__} does not record its history.")
+
+
+def check_count(solver: AbstractSolver, name: str, minimum: int = 1) -> None:
+    """Refuse an option that must be a whole number of at least `minimum`."""
+    value = getattr(solver, name)
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{type(solver).__name__}({name}={value!r}): a whole number is needed.")
+    if value < minimum:
+        raise ValueError(f"{type(solver).__name__}({name}={value}): needs at least {minimum}.")
+
+
+def check_tolerance(solver: AbstractSolver, name: str, default: str = "") -> None:
+    """Refuse a tolerance that is not a finite number >= 0 (None: the default, if any)."""
+    value = getattr(solver, name)
+    if value is None and default:
+        return
+    fix = f" (or None for the default, {default})" if default else ""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{type(solver).__name__}({name}={value!r}): a tolerance is a number"
+                        f"{fix}.")
+    if not np.isfinite(value) or value < 0:
+        raise ValueError(f"{type(solver).__name__}({name}={value}): a tolerance must be a "
+                         f"finite number >= 0{fix}.")
+
+
+def honest(converged: Array, vertices: Array, energy: Array) -> Array:
+    """A solve converged only if its result is finite: a tolerance met at an infinite
+    energy (a target at 1e20) is no convergence."""
+    return converged & jnp.isfinite(energy) & jnp.all(jnp.isfinite(vertices))
 
 
 def check_steps(solver: AbstractSolver, steps: int) -> int:

@@ -6,12 +6,13 @@ from __future__ import annotations
 import dataclasses
 
 import equinox as eqx
+import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
 from .._energy import total_energy
-from ._base import AbstractSolver, SolveInfo, check_steps
+from ._base import AbstractSolver, SolveInfo, check_count, check_steps, check_tolerance, honest
 from ._least_squares import ScaledProblem
 from ._normal_cg import hessian_solve
 
@@ -69,9 +70,9 @@ class FixedG(AbstractSolver):
         iterations: the number of steps (the maximum with `stop_early`).
         rtol: convergence tolerance on the largest vertex move `|G b(V) - V|`, relative
             to the rest bounding-box diagonal. `converged` reports whether it was met.
-        stop_early: stop as soon as the tolerance is met. This runs a `while_loop`,
-            which `jax.grad` cannot reverse: use it with `adjoint="implicit"` (or
-            forward mode only).
+        stop_early: stop as soon as the tolerance is met (a checkpointed while loop,
+            which `jax.grad` differentiates by recomputing from checkpoints; for a solve
+            run to convergence `adjoint="implicit"` is cheaper and exact at the minimum).
         adjoint: how gradients flow through the solve. `"unrolled"` (default)
             differentiates every iteration of the fixed-length loop: exact for what
             was computed, even after 15 iterations, at the memory cost of all of them
@@ -98,6 +99,11 @@ class FixedG(AbstractSolver):
     adjoint: str = eqx.field(default="unrolled", static=True)
 
     def __check_init__(self):
+        check_count(self, "iterations")
+        check_count(self, "anderson", 0)
+        check_count(self, "unroll", 0)
+        check_tolerance(self, "rtol")
+        check_tolerance(self, "regularisation")
         if self.adjoint not in ADJOINTS:
             raise ValueError(f"FixedG(adjoint={self.adjoint!r}): choose one of {ADJOINTS}.")
         if self.adjoint == "implicit" and not self.stop_early:
@@ -107,10 +113,6 @@ class FixedG(AbstractSolver):
                 "stop_early=True (with enough iterations, or anderson=...), or keep the "
                 "default adjoint='unrolled'."
             )
-        if self.iterations < 1:
-            raise ValueError(f"FixedG(iterations={self.iterations}): needs at least 1 iteration.")
-        if self.anderson < 0:
-            raise ValueError(f"FixedG(anderson={self.anderson}): the memory must be >= 0.")
 
     def _advance(self, energy, factor, targets, init):
         """One step `(v, memory) -> (v, largest move, memory)` on the coordinate rows `V^T`
@@ -175,10 +177,11 @@ class FixedG(AbstractSolver):
         vertices, (iterations, converged) = jax.lax.custom_root(
             half_gradient, init, run, tangent_solve, has_aux=True
         )
+        value = total_energy(energy, vertices, targets)
         return vertices, SolveInfo(
-            converged=converged > 0,
+            converged=honest(converged > 0, vertices, value),
             iterations=iterations.astype(jnp.int32),
-            energy=total_energy(energy, vertices, targets),
+            energy=value,
         )
 
     def _iterate(self, energy, factor, targets, init):
@@ -193,8 +196,11 @@ class FixedG(AbstractSolver):
             return k + 1, v, residual, memory
 
         if self.stop_early:
-            carry = jax.lax.while_loop(
-                lambda c: (c[0] < self.iterations) & (c[2] > tol), body, carry0
+            # Equinox's checkpointed loop runs as a plain while loop, and reverse-mode
+            # differentiates it too (lax.while_loop refuses), recomputing from checkpoints.
+            carry = eqxi.while_loop(
+                lambda c: (c[0] < self.iterations) & (c[2] > tol), body, carry0,
+                max_steps=self.iterations, kind="checkpointed",
             )
         else:
             carry = jax.lax.fori_loop(
@@ -203,10 +209,11 @@ class FixedG(AbstractSolver):
             )
         iterations, columns, residual, _ = carry
         vertices = columns.T
+        value = total_energy(energy, vertices, targets)
         info = SolveInfo(
-            converged=residual <= tol,
+            converged=honest(residual <= tol, vertices, value),
             iterations=iterations,
-            energy=total_energy(energy, vertices, targets),
+            energy=value,
         )
         return vertices, info
 

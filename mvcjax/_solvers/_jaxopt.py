@@ -17,7 +17,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ._base import AbstractSolver, check_steps
+from ._base import AbstractSolver, check_count, check_steps, check_tolerance
 from ._least_squares import ScaledProblem, check_jacobian_fits
 
 
@@ -42,6 +42,10 @@ class _JaxoptLeastSquares(AbstractSolver):
 
     tol: float | None = eqx.field(default=None, static=True)
     max_steps: int = eqx.field(default=256, static=True)
+
+    def __check_init__(self):
+        check_tolerance(self, "tol", "1e-8 in float64, 1e-4 in float32")
+        check_count(self, "max_steps")
 
     def _solver(self, residual_fun, tol: float):
         raise NotImplementedError

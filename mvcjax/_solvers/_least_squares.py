@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import lineax as lx
 from jaxtyping import Array, Complex, Float, Int
 
-from .._energy import Energy, total_energy
+from .._energy import NORMAL_WEIGHT, Energy, total_energy
 from .._factor import (
     _local_row_weights,
     _local_rows,
@@ -17,7 +17,7 @@ from .._factor import (
     apply_stencils_transpose,
     length_scale,
 )
-from ._base import SolveInfo
+from ._base import SolveInfo, honest
 
 _JACOBIAN_LIMIT_BYTES = 2**30
 
@@ -64,7 +64,7 @@ class ScaledProblem(eqx.Module):
         rows, coef: `(m, 3)` the Laplacian, edge and handle stencils.
         length: `(m,)` their rest lengths, in scaled units.
         offset: `(m,)` what each stencil is measured from (the handle targets, scaled).
-        row_weight: `(m,)` the square root of each stencil's weight.
+        row_weight: `(m,)` the square root of each stencil's weight (`Weights.normalised`).
         mvc_rows, mvc_coef: `(g, k + 1)` each inner vertex and its ring, with
             coefficients `1` and minus its mean value coordinates.
     """
@@ -91,7 +91,9 @@ class ScaledProblem(eqx.Module):
         u = self.scaled(targets).astype(dtype)
         self.offset = jnp.concatenate([jnp.zeros(rows.shape[:1], dtype),
                                        jax.lax.complex(u[0], u[1])])
-        w = energy.weights
+        # Weights normalised: tolerances then do not depend on their overall scale (at
+        # 1e-30 everywhere, optimistix stopped after one step).
+        w = energy.weights.normalised()
         self.row_weight = jnp.sqrt(jnp.concatenate([
             _local_row_weights(energy), jnp.broadcast_to(w.handle, h.shape).astype(dtype)]))
         self.mvc_rows = jnp.concatenate([energy.mvc_centre[:, None], energy.mvc_ring], axis=1)
@@ -151,15 +153,17 @@ class ScaledProblem(eqx.Module):
         """The energy (6) at the unscaled coordinate rows `V^T`, from `residuals`: the
         cheaper form, for comparisons inside an iteration."""
         r = self.residuals(self.scaled(columns.T))
-        return jnp.sum(r * r) * self.energy.scale**2
+        weights = self.energy.weights
+        return jnp.sum(r * r) * self.energy.scale**2 * weights.largest() / NORMAL_WEIGHT
 
     def result(self, y: Float[Array, "2 n"], converged, iterations
                ) -> tuple[Float[Array, "n 2"], SolveInfo]:
         vertices = self.unscaled(y)
+        energy = self.energy_at(y)
         return vertices, SolveInfo(
-            converged=jnp.asarray(converged),
+            converged=honest(jnp.asarray(converged), vertices, energy),
             iterations=jnp.asarray(iterations, jnp.int32),
-            energy=self.energy_at(y),
+            energy=energy,
         )
 
 

@@ -13,7 +13,7 @@ import lineax as lx
 import optimistix as optx
 from jaxtyping import Array
 
-from ._base import AbstractSolver, check_steps
+from ._base import AbstractSolver, check_count, check_steps, check_tolerance
 from ._descents import (
     DoglegDescent,
     StructuredDampedNewtonDescent,
@@ -70,13 +70,15 @@ class _OptimistixLeastSquares(AbstractSolver):
     cg_deflate: bool = eqx.field(default=True, static=True)
 
     def __check_init__(self):
+        for name in ("rtol", "atol"):
+            check_tolerance(self, name, "1e-10 in float64, 1e-5 in float32")
+        check_count(self, "max_steps")
+        check_count(self, "cg_steps")
         if self.linear_solver not in LINEAR_SOLVERS:
             raise ValueError(
                 f"{type(self).__name__}(linear_solver={self.linear_solver!r}): choose one of "
                 f"{LINEAR_SOLVERS}."
             )
-        if self.cg_steps < 1:
-            raise ValueError(f"{type(self).__name__}(cg_steps={self.cg_steps}): needs at least 1.")
         if not 0 <= self.cg_rtol < 1:
             raise ValueError(
                 f"{type(self).__name__}(cg_rtol={self.cg_rtol}): a relative decrease, in [0, 1)."
