@@ -11,7 +11,19 @@ from jaxtyping import Bool, Float
 
 
 def _as_ring(points, name: str) -> np.ndarray:
-    ring = np.asarray(points, dtype=np.float64)
+    try:
+        ring = np.asarray(points)
+    except ValueError:
+        raise ValueError(f"{name} must be an (n, 2) array of (x, y) vertices; got a ragged "
+                         "sequence.") from None
+    if ring.dtype.kind == "c":
+        raise TypeError(f"{name} has complex coordinates: pass real (x, y) pairs, e.g. "
+                        "np.stack([z.real, z.imag], axis=1).")
+    if ring.dtype.kind not in "iuf":
+        kind = "booleans" if ring.dtype.kind == "b" else ring.dtype.name
+        raise TypeError(f"{name} must hold real (x, y) numbers, got {kind}; expected an "
+                        "(n, 2) array of (x, y) vertices.")
+    ring = ring.astype(np.float64)
     if ring.ndim != 2 or ring.shape[1] != 2:
         raise ValueError(
             f"{name} must be an array of shape (n, 2) holding (x, y) vertices, "
@@ -19,14 +31,76 @@ def _as_ring(points, name: str) -> np.ndarray:
         )
     if not np.all(np.isfinite(ring)):
         raise ValueError(f"{name} contains NaN or infinite coordinates; remove them.")
-    if len(ring) > 1 and np.allclose(ring[0], ring[-1]):
-        ring = ring[:-1]  # a closing vertex repeated at the end is a common convention
+    if len(ring) > 1 and np.array_equal(ring[0], ring[-1]):
+        # A closing vertex repeated at the end is a common convention; a near one is a
+        # real vertex (tolerances relative to the coordinates dropped one near 1e5).
+        ring = ring[:-1]
     keep = np.ones(len(ring), bool)
     keep[1:] = np.any(ring[1:] != ring[:-1], axis=1)
     ring = ring[keep]
     if len(ring) < 3:
         raise ValueError(f"{name} needs at least 3 distinct vertices, got {len(ring)}.")
     return ring
+
+
+def _signed_area(ring: np.ndarray) -> float:
+    x, y = ring[:, 0], ring[:, 1]
+    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
+def _check_rings_apart(rings: list[np.ndarray], centre: np.ndarray, size: float) -> None:
+    """Refuse rings that touch each other or themselves, which a valid polygon allows
+    (holes may meet at a point) but the mesher does not (Triangle crashed on two holes
+    sharing a corner)."""
+    names = ["outer"] + [f"holes[{i}]" for i in range(len(rings) - 1)]
+    lines = [shapely.LinearRing(r) for r in rings]
+    for name, line in zip(names, lines):
+        if not line.is_simple:
+            raise ValueError(f"{name} touches itself (it is not simple); separate its parts or "
+                             "drop the vertex where they meet.")
+    tree = shapely.STRtree(lines)
+    for i, j in tree.query(lines, predicate="intersects").T:
+        if i < j:
+            where = shapely.intersection(lines[i], lines[j]).representative_point()
+            point = (np.asarray(where.coords[0]) * size + centre).round(9).tolist()
+            raise ValueError(
+                f"{names[i]} and {names[j]} touch at {point}: the mesher needs rings apart. "
+                "Separate them by a gap, merge them into one ring (shapely's union), or "
+                "fill one."
+            )
+
+
+def _check_component(component, count: int, what: str) -> None:
+    if component is None:
+        return
+    if isinstance(component, bool) or not isinstance(component, (int, np.integer)):
+        raise TypeError(f"component must be a whole number (0 for the largest {what}), got "
+                        f"{component!r}.")
+    if not 0 <= component < count:
+        raise ValueError(f"component={component} but there {'is' if count == 1 else 'are'} "
+                         f"only {count} {what}{'' if count == 1 else 's'}; use 0 to "
+                         f"{count - 1}.")
+
+
+def _one_polygon(geometry, component) -> shapely.Polygon:
+    """The polygon of a shapely `Polygon`, or one part of a `MultiPolygon`."""
+    if isinstance(geometry, shapely.Polygon):
+        _check_component(component, 1, "part")
+        return geometry
+    if isinstance(geometry, shapely.MultiPolygon):
+        parts = sorted(geometry.geoms, key=lambda g: -g.area)
+        if component is None:
+            if len(parts) == 1:
+                return parts[0]
+            raise ValueError(
+                f"outer is a MultiPolygon of {len(parts)} parts (areas "
+                f"{[round(p.area, 6) for p in parts[:5]]}, largest first); pick one with "
+                "component=0 for the largest, component=1 for the next, and so on."
+            )
+        _check_component(component, len(parts), "part")
+        return parts[component]
+    raise TypeError(f"outer must be vertices, a shapely Polygon or MultiPolygon, got a "
+                    f"shapely {geometry.geom_type}.")
 
 
 class Shape:
@@ -47,7 +121,14 @@ class Shape:
     def __init__(self, outer, holes: Sequence = ()):
         outer = _as_ring(outer, "outer")
         holes = tuple(_as_ring(h, f"holes[{i}]") for i, h in enumerate(holes))
-        polygon = shapely.Polygon(outer, holes)
+        # Judged in the shape's own frame: GEOS's tolerances are absolute, and a shape at
+        # 1e-20 or far from the origin would be misjudged.
+        lo, hi = outer.min(axis=0), outer.max(axis=0)
+        centre, size = 0.5 * (lo + hi), float(np.hypot(*(hi - lo)))
+        if not size > 0:
+            raise ValueError("outer has all its vertices on one point; give a polygon with area.")
+        normalised = [(r - centre) / size for r in (outer, *holes)]
+        polygon = shapely.Polygon(normalised[0], normalised[1:])
         if not polygon.is_valid:
             reason = shapely.is_valid_reason(polygon)
             raise ValueError(
@@ -58,20 +139,36 @@ class Shape:
             )
         if polygon.area <= 0:
             raise ValueError("The polygon has zero area; give at least 3 non-collinear vertices.")
-        polygon = shapely.geometry.polygon.orient(polygon, sign=1.0)
-        self.outer = np.asarray(polygon.exterior.coords, dtype=np.float64)[:-1]
-        self.holes = tuple(
-            np.asarray(r.coords, dtype=np.float64)[:-1] for r in polygon.interiors
-        )
+        _check_rings_apart(normalised, centre, size)
+        # Orientation from the signed areas, so that the stored rings are the given
+        # coordinates themselves (not mapped there and back).
+        self.outer = outer if _signed_area(normalised[0]) > 0 else outer[::-1].copy()
+        self.holes = tuple(h if _signed_area(n) < 0 else h[::-1].copy()
+                           for h, n in zip(holes, normalised[1:]))
 
     @classmethod
-    def from_polygon(cls, outer, holes: Sequence = ()) -> Shape:
-        """A shape from its outer boundary and optional holes.
+    def from_polygon(cls, outer, holes: Sequence = (), *, component: int | None = None) -> Shape:
+        """A shape from its outer boundary and optional holes, or from shapely.
 
         Args:
-            outer: `(n, 2)` `(x, y)` vertices of the outer boundary, in either orientation.
-            holes: sequence of `(m, 2)` vertex arrays, one per hole, in either orientation.
+            outer: `(n, 2)` `(x, y)` vertices of the outer boundary, in either orientation;
+                or a `shapely.Polygon` (its holes included), or a `shapely.MultiPolygon`
+                with `component` saying which part.
+            holes: sequence of `(m, 2)` vertex arrays, one per hole, in either orientation
+                (empty when `outer` is a shapely geometry).
+            component: which part of a `MultiPolygon`, counted from the largest by area
+                (0 is the largest). Required when it has several.
         """
+        if isinstance(outer, shapely.Geometry):
+            if len(holes):
+                raise ValueError("holes must be empty when outer is a shapely geometry: its "
+                                 "holes are its interiors.")
+            polygon = _one_polygon(outer, component)
+            return cls(np.asarray(polygon.exterior.coords)[:-1],
+                       [np.asarray(r.coords)[:-1] for r in polygon.interiors])
+        if component is not None:
+            raise ValueError("component= picks a part of a shapely MultiPolygon; outer is an "
+                             "array of vertices, a single polygon.")
         return cls(outer, holes)
 
     @classmethod
@@ -95,7 +192,8 @@ class Shape:
             tolerance: maximal distance, in pixels, between the simplified outline and
                 the pixel contour (Douglas-Peucker, `skimage.measure.approximate_polygon`).
                 It is lowered automatically where simplification would make the outline
-                cross itself. 0 keeps every contour vertex.
+                cross itself or change its area by more than 2% (a one-pixel line would
+                collapse). 0 keeps every contour vertex.
             component: which 4-connected foreground component to use when there are
                 several, counted from the largest (0 is the largest). Required then.
             min_hole_area: holes of smaller area, in square pixels, are filled.
@@ -105,6 +203,20 @@ class Shape:
         mask = np.asarray(mask)
         if mask.ndim != 2:
             raise ValueError(f"mask must be a 2D image, got an array of shape {mask.shape}.")
+        if mask.dtype.kind not in "biuf":
+            raise TypeError(f"mask must be a boolean or numeric image, got {mask.dtype.name}; "
+                            "pass e.g. image > threshold.")
+        if mask.dtype.kind == "f" and not np.all(np.isfinite(mask)):
+            bad = int(np.sum(~np.isfinite(mask)))
+            raise ValueError(f"mask has {bad} NaN or infinite pixels, which are neither "
+                             "foreground nor background; replace them first (np.nan_to_num, "
+                             "or a threshold such as np.nan_to_num(mask) > 0.5).")
+        for name, value in [("tolerance", tolerance), ("min_hole_area", min_hole_area)]:
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer,
+                                                                  np.floating)):
+                raise TypeError(f"{name} must be a number >= 0, got {value!r}.")
+            if not np.isfinite(value) or value < 0:
+                raise ValueError(f"{name} must be a finite number >= 0, got {value}.")
         mask = mask.astype(bool)
         if not mask.any():
             raise ValueError("mask has no foreground pixel; pass a mask that is true on the shape.")
@@ -114,6 +226,7 @@ class Shape:
                 "on a light background, pass the inverted mask (~mask)."
             )
         labels, count = measure.label(mask, connectivity=1, return_num=True)
+        _check_component(component, count, "component")
         if count > 1:
             sizes = np.bincount(labels.ravel())[1:]
             order = np.argsort(-sizes, kind="stable")
@@ -124,11 +237,7 @@ class Shape:
                     "pick one with component=0 for the largest, component=1 for the next, "
                     "or clean the mask (e.g. skimage.morphology.remove_small_objects)."
                 )
-            if not 0 <= component < count:
-                raise ValueError(f"component={component} but mask has only {count} components.")
             mask = labels == order[component] + 1
-        elif component not in (None, 0):
-            raise ValueError(f"component={component} but mask has a single component; use 0.")
 
         rows = mask.shape[0]
         padded = np.pad(mask, 1).astype(np.float64)
@@ -139,16 +248,21 @@ class Shape:
         order = np.argsort(areas)[::-1]
         outer_raw = rings[order[0]]
         holes_raw = [rings[i] for i in order[1:] if areas[i] > max(min_hole_area, 0.0)]
+        raw_area = areas[order[0]] - sum(areas[i] for i in order[1:] if areas[i] > min_hole_area)
         tol = float(tolerance)
         while True:
             simplify = (lambda r: measure.approximate_polygon(r, tol)) if tol > 0 else (lambda r: r)
             try:
-                return cls(simplify(outer_raw), [simplify(h) for h in holes_raw])
+                shape = cls(simplify(outer_raw), [simplify(h) for h in holes_raw])
+                # A shape one pixel thin collapses under simplification (a one-pixel
+                # line became a triangle of half its area).
+                if tol <= 0 or abs(shape.area - raw_area) <= 0.02 * raw_area:
+                    return shape
             except ValueError:
                 if tol <= 0:
                     raise
                 # Thin gaps (one background pixel) can make the simplified sides cross.
-                tol = tol / 2 if tol > 1e-3 else 0.0
+            tol = tol / 2 if tol > 1e-3 else 0.0
 
     # ---- geometry helpers -------------------------------------------------------------
 

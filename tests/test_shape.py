@@ -100,3 +100,102 @@ def test_thin_slot_survives_simplification(horse):
     assert not horse.polygon.covers(shapely.Point(260.5, 50.0))
     assert horse.polygon.covers(shapely.Point(255.0, 50.0))
     assert horse.polygon.covers(shapely.Point(266.0, 50.0))
+
+
+def star(points=12, inner=0.35):
+    k = np.arange(points)
+    r = np.where(k % 2 == 0, 1.0, inner)
+    a = k * 2 * np.pi / points
+    return np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
+
+
+def test_a_near_closing_vertex_far_out_is_a_real_vertex():
+    # The last vertex of this star is 0.7 from its first: np.allclose's tolerance near
+    # 1e5 took it for a repeated closing vertex and dropped it (area up 25%).
+    shape = Shape.from_polygon(star() + 1e5)
+    assert len(shape.outer) == 12
+    assert shape.area == pytest.approx(Shape.from_polygon(star()).area, rel=1e-6)
+    assert len(Shape.from_polygon(np.vstack([star(), star()[:1]])).outer) == 12
+
+
+@pytest.mark.parametrize("scale, offset", [(1e-20, 0.0), (1e20, 0.0), (1.0, 1e8), (1e-3, 1e3)])
+def test_any_scale_and_placement(scale, offset):
+    base = Shape.from_polygon(star())
+    shape = Shape.from_polygon(star() * scale + offset)
+    assert len(shape.outer) == 12
+    assert shape.area == pytest.approx(base.area * scale**2, rel=1e-6)
+    np.testing.assert_array_equal(shape.outer, star() * scale + offset)  # given ones, kept
+
+
+@pytest.mark.parametrize("holes, message", [
+    ([[[40, 40], [60, 40], [60, 60], [40, 60]], [[60, 60], [80, 60], [80, 80], [60, 80]]],
+     r"holes\[0\] and holes\[1\] touch at \[60.0, 60.0\]"),
+    ([[[0, 40], [20, 30], [20, 50]]], r"outer and holes\[0\] touch"),
+])
+def test_rings_that_touch_are_refused(holes, message):
+    # Triangle crashed the interpreter (exit 139) on two holes sharing a corner.
+    outer = np.array([[0, 0], [100, 0], [100, 100], [0, 100.0]])
+    with pytest.raises(ValueError, match=message):
+        Shape.from_polygon(outer, np.asarray(holes, float))
+
+
+def test_a_ring_that_touches_itself_is_refused():
+    bowtie_ish = np.array([[0, 0], [2, 0], [2, 2], [1, 0], [0, 2.0]])
+    with pytest.raises(ValueError, match="touches itself|not simple"):
+        Shape.from_polygon(bowtie_ish)
+
+
+@pytest.mark.parametrize("outer, error, message", [
+    (np.array([[0, 0], [1, 0], [0, 1j]]), TypeError, "complex"),
+    (np.array([[True, False], [False, True], [True, True]]), TypeError, "booleans"),
+    ("square", TypeError, "real"),
+    ([[0, 0], [1, 0, 3], [0, 1]], ValueError, "ragged"),
+])
+def test_bad_coordinates_are_explained(outer, error, message):
+    with pytest.raises(error, match=message):
+        Shape.from_polygon(outer)
+
+
+def test_shapely_polygons_are_accepted():
+    polygon = shapely.Polygon(SQUARE, [SQUARE[::-1] * 0.4 + 3.0])
+    shape = Shape.from_polygon(polygon)
+    assert shape.area == pytest.approx(polygon.area)
+    assert len(shape.holes) == 1
+    two = shapely.MultiPolygon([shapely.Polygon(SQUARE), shapely.Polygon(SQUARE * 0.5 + 20)])
+    with pytest.raises(ValueError, match="2 parts .*component=0"):
+        Shape.from_polygon(two)
+    assert Shape.from_polygon(two, component=1).area == pytest.approx(25.0)
+    with pytest.raises(TypeError, match="LineString"):
+        Shape.from_polygon(shapely.LineString(SQUARE))
+    with pytest.raises(ValueError, match="holes must be empty"):
+        Shape.from_polygon(polygon, [SQUARE * 0.1 + 1])
+
+
+def test_bad_masks_and_options_are_explained():
+    mask = np.zeros((20, 20))
+    mask[5:15, 5:15] = 1.0
+    with_nan = mask.copy()
+    with_nan[0, 0] = np.nan
+    with pytest.raises(ValueError, match="1 NaN"):
+        Shape.from_image(with_nan)
+    with pytest.raises(TypeError, match="boolean or numeric"):
+        Shape.from_image(mask.astype(complex))
+    with pytest.raises(TypeError, match="boolean or numeric"):
+        Shape.from_image(mask.astype(str))
+    for name in ("tolerance", "min_hole_area"):
+        for bad in (np.nan, -1.0):
+            with pytest.raises(ValueError, match=name):
+                Shape.from_image(mask, **{name: bad})
+    with pytest.raises(TypeError, match="component must be a whole number"):
+        Shape.from_image(mask, component=1.5)
+    with pytest.raises(ValueError, match="only 1 component"):
+        Shape.from_image(mask, component=1)
+
+
+@pytest.mark.parametrize("axis", [0, 1])
+def test_a_one_pixel_line_keeps_its_area(axis):
+    # It became a triangle of half its area (horizontal), then the rig hung.
+    mask = np.zeros((20, 40), bool)
+    mask[10, 5:35] = True
+    shape = Shape.from_image(mask if axis == 0 else mask.T)
+    assert shape.area > 0.9 * (30 - 1)
