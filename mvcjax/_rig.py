@@ -346,7 +346,7 @@ class Rig(eqx.Module):
             shape: the shape to deform.
             handles: `(h, 2)` handle points, on or inside the shape.
             shape_spacing: edge length of the shape mesh (default: `sqrt(area) / 40`,
-                about 6k vertices on a compact shape, or half the shape's thickness,
+                about 3k vertices on a compact shape, or half the shape's thickness,
                 twice its area over its perimeter, if that is smaller).
             control_spacing: spacing of the inner control vertices and longest edge of
                 the control polygon (default: `sqrt(area) / 8`).
