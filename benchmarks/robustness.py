@@ -691,6 +691,11 @@ def triangle_1e_6_high():
 
 
 @case("thin shapes")
+def triangle_of_subnormal_height():
+    return check_rig(build(_np().array([[0, 0], [1, 0], [0.5, 1e-310]]), [[0.5, 0.0]]))
+
+
+@case("thin shapes")
 def square_with_thin_spike():
     outer = _np().array([[0, 0], [1, 0], [1, 1], [0.5005, 1], [0.5005, 1.5], [0.4995, 1.5],
                          [0.4995, 1], [0, 1]])

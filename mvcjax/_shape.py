@@ -137,8 +137,12 @@ class Shape:
                 "the outer ring; fix the vertices (shapely.make_valid can help) or "
                 "simplify the outline less aggressively."
             )
-        if polygon.area <= 0:
-            raise ValueError("The polygon has zero area; give at least 3 non-collinear vertices.")
+        # In the normalised frame the area is a fraction of the diagonal squared: below
+        # 1e-14 the shape is a line as far as float64 (and any mesh) can tell.
+        if not polygon.area > 1e-14:
+            raise ValueError(f"The polygon has (almost) zero area ({polygon.area:.2g} of its "
+                             "bounding-box diagonal squared); give at least 3 non-collinear "
+                             "vertices.")
         _check_rings_apart(normalised, centre, size)
         # Orientation from the signed areas, so that the stored rings are the given
         # coordinates themselves (not mapped there and back).
