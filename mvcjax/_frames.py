@@ -10,6 +10,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Float
 
+from ._checks import kind_of
 from ._factor import DenseFactor, length_scale
 from ._rig import Rig
 from ._solvers import AbstractSolver, FixedG
@@ -144,7 +145,7 @@ def deform_frames(
     if not isinstance(targets, jax.core.Tracer):
         host = np.asarray(targets)
         if host.dtype.kind not in "iuf":
-            raise TypeError(f"targets must be real (x, y) numbers, got {host.dtype.name}.")
+            raise TypeError(f"targets must be real (x, y) numbers, got {kind_of(host)}.")
         if host.ndim == 3 and host.shape[1:] == (h, 2):
             bad = np.flatnonzero(~np.isfinite(host).all(axis=(1, 2)))
             if len(bad):

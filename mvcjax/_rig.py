@@ -13,6 +13,7 @@ from . import _coordinates as coords
 from . import _meshing as meshing
 from scipy.spatial import cKDTree
 
+from ._checks import as_points, kind_of
 from ._energy import Energy, Weights, rigid_start, total_energy
 from ._factor import AbstractFactor, make_factor
 from ._frame import Frame, bounding_frame, check_representable, frame_array
@@ -114,28 +115,8 @@ def _check_dtype(dtype):
     return jnp.dtype(dt)
 
 
-def _as_points(points, name: str, rows: str = "k") -> np.ndarray:
-    """`(rows, 2)` real, finite float64 points, or an error naming `name`."""
-    try:
-        array = np.asarray(points)
-    except ValueError:
-        raise ValueError(f"{name} must be an array of shape ({rows}, 2) of (x, y) points; got "
-                         "a ragged sequence.") from None
-    if array.dtype.kind not in "iuf":
-        kind = {"c": "complex numbers", "b": "booleans"}.get(array.dtype.kind, array.dtype.name)
-        raise TypeError(f"{name} must hold real (x, y) numbers, got {kind}; pass a float array "
-                        f"of shape ({rows}, 2).")
-    array = array.astype(np.float64)
-    if array.ndim != 2 or array.shape[1] != 2 or len(array) == 0:
-        raise ValueError(f"{name} must be an array of shape ({rows}, 2) with at least one (x, y) "
-                         f"point, got shape {array.shape}.")
-    if not np.all(np.isfinite(array)):
-        raise ValueError(f"{name} contain NaN or infinite coordinates; give finite (x, y) points.")
-    return array
-
-
 def _check_handles(shape: Shape, handles) -> np.ndarray:
-    handles = _as_points(handles, "handles", "h")
+    handles = as_points(handles, "handles", "h")
     tol = 1e-6 * shape.diagonal
     poly = shape.polygon
     dist = shapely.distance(shapely.points(handles), poly)
@@ -235,7 +216,7 @@ def _control_from_arrays(control, handles, tol):
         raise TypeError(
             f"control must be None, 'shape' or a (vertices, faces) pair, got {control!r}."
         )
-    vertices = _as_points(control[0], "control vertices", "c")
+    vertices = as_points(control[0], "control vertices", "c")
     try:
         faces = np.asarray(control[1])
     except ValueError:
@@ -527,7 +508,7 @@ class Rig(eqx.Module):
                 raise ValueError(f"targets must be an array of shape ({h}, 2); got a ragged "
                                  "sequence.") from None
             if host.dtype.kind not in "iuf":
-                raise TypeError(f"targets must be real (x, y) numbers, got {host.dtype.name}; "
+                raise TypeError(f"targets must be real (x, y) numbers, got {kind_of(host)}; "
                                 f"pass a float array of shape ({h}, 2).")
             if host.shape == (h, 2) and not np.all(np.isfinite(host)):
                 raise ValueError("targets contain NaN or infinite values; give finite (x, y) "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 
 import numpy as np
@@ -9,35 +10,18 @@ import shapely
 import shapely.ops
 from jaxtyping import Bool, Float
 
+from ._checks import as_points, kind_of
+
 
 def _as_ring(points, name: str) -> np.ndarray:
-    try:
-        ring = np.asarray(points)
-    except ValueError:
-        raise ValueError(f"{name} must be an (n, 2) array of (x, y) vertices; got a ragged "
-                         "sequence.") from None
-    if ring.dtype.kind == "c":
-        raise TypeError(f"{name} has complex coordinates: pass real (x, y) pairs, e.g. "
-                        "np.stack([z.real, z.imag], axis=1).")
-    if ring.dtype.kind not in "iuf":
-        kind = "booleans" if ring.dtype.kind == "b" else ring.dtype.name
-        raise TypeError(f"{name} must hold real (x, y) numbers, got {kind}; expected an "
-                        "(n, 2) array of (x, y) vertices.")
-    ring = ring.astype(np.float64)
-    if ring.ndim != 2 or ring.shape[1] != 2:
-        raise ValueError(
-            f"{name} must be an array of shape (n, 2) holding (x, y) vertices, "
-            f"got shape {ring.shape}."
-        )
-    if not np.all(np.isfinite(ring)):
-        raise ValueError(f"{name} contains NaN or infinite coordinates; remove them.")
-    if len(ring) > 1 and np.array_equal(ring[0], ring[-1]):
-        # A closing vertex repeated at the end is a common convention; a near one is a
-        # real vertex (tolerances relative to the coordinates dropped one near 1e5).
-        ring = ring[:-1]
-    keep = np.ones(len(ring), bool)
-    keep[1:] = np.any(ring[1:] != ring[:-1], axis=1)
-    ring = ring[keep]
+    """`(n, 2)` float64 vertices without repeats, or an error naming `name`."""
+    ring = as_points(points, name, allow_empty=True)
+    # A vertex equal to the next one, cyclically, is dropped: this removes a closing
+    # vertex repeated at the end (a common convention) and doubled vertices, which
+    # the mesher refuses. Only exact repeats: a near one is a real vertex (a tolerance
+    # relative to the coordinates dropped one of a small star near 1e5).
+    keep = np.any(ring != np.roll(ring, -1, axis=0), axis=1)
+    ring = ring[keep] if keep.any() else ring[:1]
     if len(ring) < 3:
         raise ValueError(f"{name} needs at least 3 distinct vertices, got {len(ring)}.")
     return ring
@@ -48,12 +32,23 @@ def _signed_area(ring: np.ndarray) -> float:
     return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
 
 
-def _check_rings_apart(rings: list[np.ndarray], centre: np.ndarray, size: float) -> None:
+def _where(point, rings, normalised, centre, size) -> list[float]:
+    """A point of the normalised frame in the caller's coordinates: the given vertex
+    where it is one, since mapping back shows rounding noise (60.00000000000001)."""
+    point = np.asarray(point, np.float64)
+    for ring, norm in zip(rings, normalised):
+        distance = np.hypot(*(norm - point).T)
+        if distance.min() <= 1e-12:
+            return ring[distance.argmin()].tolist()
+    return [float(f"{c:.12g}") for c in point * size + centre]
+
+
+def _check_rings_apart(rings, normalised, centre, size) -> None:
     """Refuse rings that touch each other or themselves, which a valid polygon allows
     (holes may meet at a point) but the mesher does not (Triangle crashed on two holes
-    sharing a corner)."""
+    sharing a corner). Judged on the `normalised` rings."""
     names = ["outer"] + [f"holes[{i}]" for i in range(len(rings) - 1)]
-    lines = [shapely.LinearRing(r) for r in rings]
+    lines = [shapely.LinearRing(r) for r in normalised]
     for name, line in zip(names, lines):
         if not line.is_simple:
             raise ValueError(f"{name} touches itself (it is not simple); separate its parts or "
@@ -62,7 +57,7 @@ def _check_rings_apart(rings: list[np.ndarray], centre: np.ndarray, size: float)
     for i, j in tree.query(lines, predicate="intersects").T:
         if i < j:
             where = shapely.intersection(lines[i], lines[j]).representative_point()
-            point = (np.asarray(where.coords[0]) * size + centre).round(9).tolist()
+            point = _where(where.coords[0], rings, normalised, centre, size)
             raise ValueError(
                 f"{names[i]} and {names[j]} touch at {point}: the mesher needs rings apart. "
                 "Separate them by a gap, merge them into one ring (shapely's union), or "
@@ -84,6 +79,8 @@ def _check_component(component, count: int, what: str) -> None:
 
 def _one_polygon(geometry, component) -> shapely.Polygon:
     """The polygon of a shapely `Polygon`, or one part of a `MultiPolygon`."""
+    if isinstance(geometry, (shapely.Polygon, shapely.MultiPolygon)) and geometry.is_empty:
+        raise ValueError(f"outer is an empty shapely {geometry.geom_type}; give one with area.")
     if isinstance(geometry, shapely.Polygon):
         _check_component(component, 1, "part")
         return geometry
@@ -119,18 +116,44 @@ class Shape:
     holes: tuple[Float[np.ndarray, "m 2"], ...]
 
     def __init__(self, outer, holes: Sequence = ()):
+        """A shape from its outer ring and holes (see `Shape.from_polygon`).
+
+        Args:
+            outer: `(n, 2)` real `(x, y)` vertices, either orientation, the first vertex
+                repeated at the end or not.
+            holes: sequence of such arrays, one per hole.
+
+        Refused with an error naming the ring: non-numeric, complex, boolean, ragged or
+        non-finite coordinates, fewer than 3 distinct vertices, rings that cross or touch
+        themselves or each other (even at one point), holes outside the outer ring, no
+        area, and a bounding-box diagonal outside 1e-100 to 1e100.
+        """
+        if holes is None:
+            raise TypeError("holes must be a sequence of (m, 2) vertex arrays, one per hole; "
+                            "pass () for none.")
+        if isinstance(holes, np.ndarray) and holes.ndim == 2:
+            raise ValueError(f"holes must be a sequence of (m, 2) vertex arrays, one per hole, "
+                             f"got a single array of shape {holes.shape}; pass [hole].")
         outer = _as_ring(outer, "outer")
         holes = tuple(_as_ring(h, f"holes[{i}]") for i, h in enumerate(holes))
         # Judged in the shape's own frame: GEOS's tolerances are absolute, and a shape at
         # 1e-20 or far from the origin would be misjudged.
         lo, hi = outer.min(axis=0), outer.max(axis=0)
         centre, size = 0.5 * (lo + hi), float(np.hypot(*(hi - lo)))
-        if not size > 0:
-            raise ValueError("outer has all its vertices on one point; give a polygon with area.")
+        # Areas (and the mesher's squared distances) overflow or underflow beyond these.
+        if not 1e-100 <= size <= 1e100:
+            raise ValueError(f"outer has a bounding-box diagonal of {size:.3g}, outside 1e-100 "
+                             "to 1e100 where areas fit in float64; rescale the coordinates.")
         normalised = [(r - centre) / size for r in (outer, *holes)]
         polygon = shapely.Polygon(normalised[0], normalised[1:])
         if not polygon.is_valid:
             reason = shapely.is_valid_reason(polygon)
+            # GEOS reports where, in the normalised frame: shown in the given coordinates.
+            found = re.fullmatch(r"(.*)\[(\S+) (\S+)\]", reason)
+            if found:
+                point = _where([float(found[2]), float(found[3])],
+                               [outer, *holes], normalised, centre, size)
+                reason = f"{found[1]} at {point}"
             raise ValueError(
                 f"The polygon is not simple: {reason}. The outer ring and holes must not "
                 "cross or touch themselves or each other, and every hole must lie inside "
@@ -143,7 +166,7 @@ class Shape:
             raise ValueError(f"The polygon has (almost) zero area ({polygon.area:.2g} of its "
                              "bounding-box diagonal squared); give at least 3 non-collinear "
                              "vertices.")
-        _check_rings_apart(normalised, centre, size)
+        _check_rings_apart([outer, *holes], normalised, centre, size)
         # Orientation from the signed areas, so that the stored rings are the given
         # coordinates themselves (not mapped there and back).
         self.outer = outer if _signed_area(normalised[0]) > 0 else outer[::-1].copy()
@@ -157,19 +180,24 @@ class Shape:
         Args:
             outer: `(n, 2)` `(x, y)` vertices of the outer boundary, in either orientation;
                 or a `shapely.Polygon` (its holes included), or a `shapely.MultiPolygon`
-                with `component` saying which part.
+                with `component` saying which part. Other geometries (lines, points,
+                collections) are refused with a `TypeError`, empty ones with a
+                `ValueError`.
             holes: sequence of `(m, 2)` vertex arrays, one per hole, in either orientation
                 (empty when `outer` is a shapely geometry).
             component: which part of a `MultiPolygon`, counted from the largest by area
-                (0 is the largest). Required when it has several.
+                (0 is the largest). Required when it has several; refused with vertices.
+
+        The rings are checked as in `Shape` (invalid or touching rings are refused).
         """
         if isinstance(outer, shapely.Geometry):
             if len(holes):
                 raise ValueError("holes must be empty when outer is a shapely geometry: its "
                                  "holes are its interiors.")
             polygon = _one_polygon(outer, component)
-            return cls(np.asarray(polygon.exterior.coords)[:-1],
-                       [np.asarray(r.coords)[:-1] for r in polygon.interiors])
+            # get_coordinates drops z, which a shape has no use for.
+            return cls(shapely.get_coordinates(polygon.exterior)[:-1],
+                       [shapely.get_coordinates(r)[:-1] for r in polygon.interiors])
         if component is not None:
             raise ValueError("component= picks a part of a shapely MultiPolygon; outer is an "
                              "array of vertices, a single polygon.")
@@ -192,15 +220,19 @@ class Shape:
         image border is closed along the border.
 
         Args:
-            mask: 2D array, foreground where true (or non-zero).
+            mask: 2D array of booleans, integers or floats, foreground where true (or
+                non-zero). Other dtypes (complex, strings, objects) are refused with a
+                `TypeError`, NaN or infinite pixels with a `ValueError`.
             tolerance: maximal distance, in pixels, between the simplified outline and
                 the pixel contour (Douglas-Peucker, `skimage.measure.approximate_polygon`).
                 It is lowered automatically where simplification would make the outline
                 cross itself or change its area by more than 2% (a one-pixel line would
-                collapse). 0 keeps every contour vertex.
+                collapse). 0 keeps every contour vertex. Must be a finite number >= 0.
             component: which 4-connected foreground component to use when there are
-                several, counted from the largest (0 is the largest). Required then.
-            min_hole_area: holes of smaller area, in square pixels, are filled.
+                several, counted from the largest (0 is the largest). Required then; an
+                `int`, not a bool or float.
+            min_hole_area: holes of smaller area, in square pixels, are filled. Must be a
+                finite number >= 0.
         """
         from skimage import measure
 
@@ -208,7 +240,7 @@ class Shape:
         if mask.ndim != 2:
             raise ValueError(f"mask must be a 2D image, got an array of shape {mask.shape}.")
         if mask.dtype.kind not in "biuf":
-            raise TypeError(f"mask must be a boolean or numeric image, got {mask.dtype.name}; "
+            raise TypeError(f"mask must be a boolean or numeric image, got {kind_of(mask)}; "
                             "pass e.g. image > threshold.")
         if mask.dtype.kind == "f" and not np.all(np.isfinite(mask)):
             bad = int(np.sum(~np.isfinite(mask)))
@@ -251,9 +283,10 @@ class Shape:
         areas = [abs(shapely.Polygon(r).area) for r in rings]
         order = np.argsort(areas)[::-1]
         outer_raw = rings[order[0]]
-        holes_raw = [rings[i] for i in order[1:] if areas[i] > max(min_hole_area, 0.0)]
-        raw_area = areas[order[0]] - sum(areas[i] for i in order[1:] if areas[i] > min_hole_area)
-        tol = float(tolerance)
+        holes_raw = [rings[i] for i in order[1:] if areas[i] > min_hole_area]
+        raw_area = areas[order[0]] - sum(shapely.Polygon(h).area for h in holes_raw)
+        # Beyond the image's size a tolerance simplifies no further, only halves longer.
+        tol = min(float(tolerance), float(np.hypot(*mask.shape)))
         while True:
             simplify = (lambda r: measure.approximate_polygon(r, tol)) if tol > 0 else (lambda r: r)
             try:
