@@ -288,9 +288,10 @@ class Shape:
         # Beyond the image's size a tolerance simplifies no further, only halves longer.
         tol = min(float(tolerance), float(np.hypot(*mask.shape)))
         while True:
-            simplify = (lambda r: measure.approximate_polygon(r, tol)) if tol > 0 else (lambda r: r)
+            simple = [measure.approximate_polygon(r, tol) if tol > 0 else r
+                      for r in (outer_raw, *holes_raw)]
             try:
-                shape = cls(simplify(outer_raw), [simplify(h) for h in holes_raw])
+                shape = cls(simple[0], simple[1:])
                 # A shape one pixel thin collapses under simplification (a one-pixel
                 # line became a triangle of half its area).
                 if tol <= 0 or abs(shape.area - raw_area) <= 0.02 * raw_area:

@@ -1,3 +1,5 @@
+import re
+
 import numpy as np
 import pytest
 import shapely
@@ -199,3 +201,88 @@ def test_a_one_pixel_line_keeps_its_area(axis):
     mask[10, 5:35] = True
     shape = Shape.from_image(mask if axis == 0 else mask.T)
     assert shape.area > 0.9 * (30 - 1)
+
+
+def test_repeats_at_the_end_and_near_vertices_far_out():
+    # Doubled closing vertices are dropped cyclically (a second one was kept, and the
+    # mesher refuses a repeated vertex); an extra vertex 0.3 from the first near 1e5 stays.
+    assert len(Shape.from_polygon(np.vstack([SQUARE, SQUARE[:1], SQUARE[:1]])).outer) == 4
+    assert len(Shape.from_polygon(np.vstack([SQUARE[:1], SQUARE])).outer) == 4
+    near = np.vstack([star(), [[1.0, -0.3]]])
+    shape = Shape.from_polygon(near + 1e5)
+    assert len(shape.outer) == 13
+    assert shape.area == pytest.approx(Shape.from_polygon(near).area, rel=1e-6)
+
+
+@pytest.mark.parametrize("holes, error, message", [
+    (None, TypeError, r"pass \(\) for none"),
+    (SQUARE * 0.2 + 1, ValueError, r"single array of shape \(4, 2\); pass \[hole\]"),
+])
+def test_holes_given_as_one_array_or_none_are_explained(holes, error, message):
+    with pytest.raises(error, match=message):
+        Shape.from_polygon(SQUARE, holes)
+
+
+@pytest.mark.parametrize("scale", [1e-200, 1e200])
+def test_scales_beyond_float_areas_are_refused(scale):
+    # The area overflowed to inf (or underflowed to 0) silently.
+    with pytest.raises(ValueError, match="diagonal of .* outside 1e-100 to 1e100.*rescale"):
+        Shape.from_polygon(SQUARE * scale)
+
+
+def test_where_rings_meet_is_told_in_the_given_coordinates():
+    # GEOS judges the normalised copy; its location must not leak into the message.
+    a = np.array([[4, 4], [6, 4], [6, 6], [4, 6.0]])
+    where = r"not simple: .* at \[10000000[46]\.0, 10000000[46]\.0\]"
+    with pytest.raises(ValueError, match=where):
+        Shape.from_polygon(SQUARE + 1e8, [a + 1e8, a + [2, 0] + 1e8])  # a shared side
+    tiny = 1e-20
+    with pytest.raises(ValueError, match=re.escape(f"touch at {[6 * tiny, 6 * tiny]}")):
+        Shape.from_polygon(SQUARE * tiny, [a * tiny, (a + 2) * tiny])  # a shared corner
+
+
+def test_shapely_edge_cases():
+    with pytest.raises(ValueError, match="empty shapely Polygon"):
+        Shape.from_polygon(shapely.Polygon())
+    with pytest.raises(ValueError, match="empty shapely MultiPolygon"):
+        Shape.from_polygon(shapely.MultiPolygon())
+    with pytest.raises(TypeError, match="Point"):
+        Shape.from_polygon(shapely.Point(0, 0))
+    with pytest.raises(TypeError, match="GeometryCollection"):
+        Shape.from_polygon(shapely.GeometryCollection([shapely.Polygon(SQUARE)]))
+    with pytest.raises(ValueError, match="component= picks a part"):
+        Shape.from_polygon(SQUARE, component=0)
+    one = shapely.MultiPolygon([shapely.Polygon(SQUARE)])
+    assert Shape.from_polygon(one).area == pytest.approx(100.0)
+    with_z = shapely.Polygon(np.c_[SQUARE, np.ones(4)])  # z is dropped
+    np.testing.assert_array_equal(Shape.from_polygon(with_z).outer, SQUARE)
+
+
+def test_more_bad_masks_and_options():
+    mask = np.zeros((30, 30), bool)
+    mask[10:20, 10:20] = True
+    with pytest.raises(TypeError, match="Python objects"):
+        Shape.from_image(mask.astype(object))
+    with pytest.raises(ValueError, match="100 NaN or infinite"):
+        Shape.from_image(np.where(mask, np.inf, 0.0))
+    with pytest.raises(TypeError, match="component must be a whole number"):
+        Shape.from_image(mask, component=True)
+    with pytest.raises(TypeError, match="tolerance must be a number"):
+        Shape.from_image(mask, tolerance="1")
+    with pytest.raises(ValueError, match="min_hole_area"):
+        Shape.from_image(mask, min_hole_area=np.inf)
+    assert Shape.from_image(mask.astype(np.uint8), component=np.int64(0)).area == \
+        pytest.approx(100 - 0.5)
+    # A huge tolerance ends (halved from the image's size, not from 1e300) and keeps the area.
+    assert Shape.from_image(mask, tolerance=1e300).area == pytest.approx(100 - 0.5, rel=0.02)
+
+
+def test_a_one_pixel_line_matches_its_pixel_contour():
+    from skimage import measure
+
+    mask = np.zeros((20, 40), bool)
+    mask[10, 5:35] = True
+    (contour,) = measure.find_contours(np.pad(mask, 1).astype(float), 0.5)
+    raw = shapely.Polygon(contour).area  # about 30 - 0.5
+    for m in (mask, mask.T):
+        assert Shape.from_image(m).area == pytest.approx(raw, rel=0.05)
