@@ -306,8 +306,9 @@ def ragged_polygon():
 
 @case("polygons", quick=True)
 def shapely_polygon():
-    import mvcjax
     import shapely
+
+    import mvcjax
 
     polygon = shapely.Polygon(rect(2, 2), [rect(0.5, 0.5) + 0.5])
     shape = mvcjax.Shape.from_polygon(polygon)
@@ -318,8 +319,9 @@ def shapely_polygon():
 
 @case("polygons")
 def shapely_multipolygon():
-    import mvcjax
     import shapely
+
+    import mvcjax
 
     mvcjax.Shape.from_polygon(shapely.MultiPolygon([shapely.Polygon(rect(1, 1)),
                                                     shapely.Polygon(rect(1, 1) + 3)]))
@@ -544,6 +546,7 @@ def gauss_newton_negative_max_steps():
 def grad_through_stop_early():
     import jax
     import jax.numpy as jnp
+
     import mvcjax
 
     rig = star_rig()
@@ -587,6 +590,7 @@ def weights_handle_1e30():
 def weights_all_1e_30():
     x64()
     import jax.numpy as jnp
+
     import mvcjax
 
     rig = star_rig(weights=mvcjax.Weights(1e-30, 1e-30, 1e-30, 1e-30), dtype=jnp.float64)
@@ -636,6 +640,7 @@ def targets_closed_over_in_jit():
 @case("targets")
 def with_weights_under_jit():
     import jax
+
     import mvcjax
 
     rig = star_rig()
@@ -793,7 +798,7 @@ def run_in_child(name: str) -> dict:
         outcome, message = "wrong answer", str(error)
     except MemoryError as error:
         outcome, message = "memory", f"MemoryError: {error}"
-    except Exception as error:  # noqa: BLE001 - classifying every failure is the point
+    except Exception as error:
         import mvcjax
 
         frames = traceback.extract_tb(error.__traceback__)

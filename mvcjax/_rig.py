@@ -8,11 +8,10 @@ import jax.numpy as jnp
 import numpy as np
 import shapely
 from jaxtyping import Array, Float, Int
+from scipy.spatial import cKDTree
 
 from . import _coordinates as coords
 from . import _meshing as meshing
-from scipy.spatial import cKDTree
-
 from ._checks import as_points, kind_of
 from ._energy import Energy, Weights, rigid_start, total_energy
 from ._factor import AbstractFactor, make_factor
