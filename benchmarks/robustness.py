@@ -105,7 +105,7 @@ def build(outer, handles, holes=(), **kwargs):
     import mvcjax
 
     shape = mvcjax.Shape.from_polygon(outer, holes)
-    return mvcjax.Rig.build(shape, _np().asarray(handles, float), **kwargs)
+    return mvcjax.Rig.build(shape, handles, **kwargs)
 
 
 def star_rig(**kwargs):
@@ -130,12 +130,14 @@ def converged_right(rig, targets, solver):
 
 # ---- the cases ----------------------------------------------------------------------
 
-CASES: dict[str, tuple[str, object]] = {}
+CASES: dict[str, tuple[str, object, bool, float]] = {}
 
 
-def case(group, quick=False):
+def case(group, quick=False, minutes=1.0):
+    """Register a case: its group, whether the quick run has it, and its time limit in
+    multiples of `--timeout`."""
     def register(fn):
-        CASES[fn.__name__] = (group, fn, quick)
+        CASES[fn.__name__] = (group, fn, quick, minutes)
         return fn
 
     return register
@@ -760,7 +762,7 @@ def handle_on_a_hole_edge():
     return check_rig(build(rect(100, 100), [[40.0, 50.0], [10.0, 10.0]], [hole]))
 
 
-@case("sessions")
+@case("sessions", minutes=5.0)
 def many_rigs_keep_memory_flat():
     import mvcjax
 
@@ -787,7 +789,7 @@ def many_rigs_keep_memory_flat():
 
 def run_in_child(name: str) -> dict:
     """Run one case here and classify what happened."""
-    _, fn, _ = CASES[name]
+    _, fn, _, _ = CASES[name]
     start = time.perf_counter()
     try:
         message = fn()
@@ -820,7 +822,8 @@ def _limit_memory(gib: float):
 
 
 def run_case(name: str, timeout: float, memory_gib: float) -> dict:
-    group = CASES[name][0]
+    group, _, _, minutes = CASES[name]
+    timeout = timeout * minutes
     start = time.perf_counter()
     try:
         proc = subprocess.run([sys.executable, __file__, "--child", name], capture_output=True,
@@ -854,7 +857,7 @@ def main(argv=None) -> int:
         print(json.dumps(run_in_child(args.child)), flush=True)
         return 0
 
-    names = [n for n, (_, _, quick) in CASES.items()
+    names = [n for n, (_, _, quick, _) in CASES.items()
              if (quick or not args.quick) and args.only in n]
     results = []
     width = max(len(n) for n in names)
