@@ -20,6 +20,8 @@ def _safe_normalise(v: Float[Array, "m 2"]) -> Float[Array, "m 2"]:
 # in the normal matrix (float32 holds 7 digits, its squares 14).
 MAX_WEIGHT_RATIO = 1e8
 NORMAL_WEIGHT = 100.0
+# Any positive weight, so that it and its square root stay normal float32 numbers.
+WEIGHT_RANGE = (1e-36, 1e36)
 
 
 class Weights(eqx.Module):
@@ -37,6 +39,16 @@ class Weights(eqx.Module):
         mvc: weight of `|M V|^2` (inner vertices stay at their mean value position).
         length: weight of `|H V - e(V)|^2` (edge lengths, local rigidity).
         handle: weight of `|C V - U|^2` (how hard the handles pull).
+
+    Only the ratios between the weights matter: the solvers and factors use the weights
+    scaled to a fixed largest value (`normalised`), so `Weights(1e-30, 1e-30, 1e-30,
+    1e-28)` deforms exactly like the default, with energies 1e-30 times as large.
+
+    Refused (ValueError, checked where the weights are made, not under `jit`): a weight
+    that is not a finite real number >= 0; `handle` zero; `laplacian`, `mvc` and
+    `length` all zero; two positive weights more than `MAX_WEIGHT_RATIO` (1e8) apart;
+    a positive weight outside `WEIGHT_RANGE` (1e-36 to 1e36, float32's range).
+    Something other than a `Weights` is refused by `check_weights`.
     """
 
     laplacian: Float[Array, ""] = eqx.field(default=1.0, converter=jnp.asarray)
@@ -67,14 +79,23 @@ class Weights(eqx.Module):
                 "one shape term a positive weight."
             )
         positive = {k: x for k, x in v.items() if x > 0}
+        for name, x in positive.items():
+            if not WEIGHT_RANGE[0] <= x <= WEIGHT_RANGE[1]:
+                raise ValueError(
+                    f"Weights({name}={x:g}) is outside [{WEIGHT_RANGE[0]:.0e}, "
+                    f"{WEIGHT_RANGE[1]:.0e}], too near the limits of float32 (it would round "
+                    "to 0 or overflow there). Only the ratios between the weights matter: "
+                    "scale them all by the same factor into that range."
+                )
         ratio = max(positive.values()) / min(positive.values())
         if ratio > MAX_WEIGHT_RATIO:
             big, small = max(positive, key=positive.get), min(positive, key=positive.get)
             raise ValueError(
-                f"Weights({big}={v[big]:g}) is {ratio:.1e} times Weights({small}={v[small]:g}): "
-                f"beyond {MAX_WEIGHT_RATIO:.0e}, the normal matrix is singular in floating "
-                "point (the smaller term is lost). Keep the weights within that ratio, or set "
-                "a term you do not want to 0 (the handles' weight must stay positive)."
+                f"Weights({big}={v[big]:g}) is {ratio:.1e} times Weights({small}={v[small]:g}); "
+                f"positive weights must lie within a ratio of {MAX_WEIGHT_RATIO:.0e} of each "
+                f"other (ratios from {1 / MAX_WEIGHT_RATIO:.0e} to {MAX_WEIGHT_RATIO:.0e}), or the "
+                "normal matrix is singular in floating point (the smaller term is lost). Bring them closer, or set a term "
+                "you do not want to 0 (the handles' weight must stay positive)."
             )
 
     def astype(self, dtype) -> Weights:
@@ -90,6 +111,17 @@ class Weights(eqx.Module):
         defaults whatever the weights' overall scale (pure JAX, so it jits)."""
         factor = NORMAL_WEIGHT / self.largest()
         return jax.tree.map(lambda w: w * factor, self)
+
+
+def check_weights(weights, name: str = "weights") -> Weights:
+    """`weights` itself if it is a `Weights`; otherwise a TypeError that says how to
+    write one (a dict of weights is a common slip)."""
+    if isinstance(weights, Weights):
+        return weights
+    got = type(weights).__name__
+    fix = (f"mvcjax.Weights(**{weights!r})" if isinstance(weights, dict)
+           else "e.g. mvcjax.Weights(handle=10.0)")
+    raise TypeError(f"{name} must be an mvcjax.Weights, got {got}; write {fix}.")
 
 
 class Energy(eqx.Module):

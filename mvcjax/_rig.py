@@ -13,7 +13,7 @@ from scipy.spatial import cKDTree
 from . import _coordinates as coords
 from . import _meshing as meshing
 from ._checks import as_points, kind_of
-from ._energy import Energy, Weights, rigid_start, total_energy
+from ._energy import Energy, Weights, check_weights, rigid_start, total_energy
 from ._factor import AbstractFactor, make_factor
 from ._frame import Frame, bounding_frame, check_representable, frame_array
 from ._shape import Shape
@@ -362,13 +362,7 @@ class Rig(eqx.Module):
             )
         dtype = _check_dtype(dtype)
         handles = _check_handles(shape, handles)
-        weights = Weights() if weights is None else weights
-        if not isinstance(weights, Weights):
-            raise TypeError(
-                f"weights must be an mvcjax.Weights, got {type(weights).__name__}; write e.g. "
-                "mvcjax.Weights(handle=10.0)" + (" or mvcjax.Weights(**weights)"
-                                                 if isinstance(weights, dict) else "") + "."
-            )
+        weights = Weights() if weights is None else check_weights(weights)
         if skinning not in SKINNINGS:
             raise ValueError(f"skinning must be one of {SKINNINGS}, got {skinning!r}.")
         if isinstance(max_triangles, bool) or not isinstance(max_triangles, (int, np.integer)) \
@@ -472,8 +466,7 @@ class Rig(eqx.Module):
         Recomputes the factor: with a dense `G` this is jittable and differentiable (no
         recompilation); a sparse factor is refactored on the host, outside `jit`.
         """
-        if not isinstance(weights, Weights):
-            raise TypeError(f"weights must be an mvcjax.Weights, got {type(weights).__name__}.")
+        weights = check_weights(weights)
         energy = eqx.tree_at(lambda e: e.weights, self.energy, weights.astype(self.energy.rest.dtype))
         return eqx.tree_at(lambda r: (r.energy, r.factor), self, (energy, self.factor.rebuild(energy)))
 
@@ -624,8 +617,9 @@ def _solve_local(rig: Rig, targets, solver: AbstractSolver, init):
     local_targets = rig.frame.to_local(targets)
     vertices, info = solver.solve(rig.energy, rig.factor, local_targets,
                                   rig._local_start(local_targets, init))
-    info = eqx.tree_at(lambda i: i.energy, info, info.energy * rig.frame.scale**2)
-    return vertices, info
+    # In the user's units the energy can overflow where the rig's was finite: then it did
+    # not converge.
+    return vertices, info.rescaled(rig.frame.scale**2)
 
 
 def _compiled_when_eager(fn):

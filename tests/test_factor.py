@@ -94,3 +94,30 @@ def test_gauss_newton_on_the_sparse_factor_over_frames(small_full):
     for k in range(2):
         np.testing.assert_allclose(together[k], small_full.solve(targets[k], solver), rtol=0,
                                    atol=1e-7 * float(small_full.frame.scale))
+
+
+def test_factors_are_blind_to_the_weights_overall_scale(small_full):
+    # G does not change when every weight is scaled alike; the factors normalise the
+    # weights so that their rounding does not either (1e-30 squared underflowed).
+    energy = small_full.energy
+    tiny = eqx.tree_at(lambda e: e.weights, energy,
+                       mvcjax.Weights(1e-30, 1e-30, 1e-30, 1e-28).astype(jnp.float64))
+    targets, v = local_point(small_full, [[10.0, 5.0], [0.0, -3.0]], 1e-2)
+    for make in (dense_factor, sparse_factor):
+        a, b = make(energy), make(tiny)
+        np.testing.assert_allclose(b.step(v.T, b.handle_part(targets)),
+                                   a.step(v.T, a.handle_part(targets)), atol=1e-12)
+
+
+def test_scaling_all_weights_under_jit_and_grad_changes_nothing(horse_rig):
+    # with_weights rebuilds the dense factor inside jit: its normalisation must jit and
+    # differentiate, and the deformation depends on the weights' ratios only.
+    targets = drag(horse_rig, np.zeros((horse_rig.handle_positions.shape[0], 2)) + 5.0)
+
+    def loss(s):
+        weights = mvcjax.Weights(s, s, s, 100.0 * s)
+        return jnp.sum(horse_rig.with_weights(weights).deform(targets)[::50] ** 2)
+
+    value, grad = jax.jit(jax.value_and_grad(loss))(jnp.asarray(3.0))
+    assert float(value) == pytest.approx(float(loss(1.0)), rel=1e-12)
+    assert abs(float(grad)) < 1e-9 * float(value)

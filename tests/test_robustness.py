@@ -176,7 +176,7 @@ def small():
     (dict(control="mesh"), TypeError, "control must be"),
     (dict(control=(star(), np.array([[0, 1, 99]]))), ValueError, "control faces index"),
     (dict(control=(star(), np.array([[0.0, 1, 2]]))), ValueError, "integer array"),
-    (dict(weights={"handle": 10.0}), TypeError, r"mvcjax.Weights\(\*\*weights\)"),
+    (dict(weights={"handle": 10.0}), TypeError, r"mvcjax.Weights\(\*\*\{.handle.: 10.0\}\)"),
     (dict(skinning="nearest"), ValueError, "skinning must be"),
     (dict(max_triangles=0), ValueError, "max_triangles"),
 ], ids=lambda v: str(v)[:40])

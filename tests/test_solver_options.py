@@ -1,6 +1,8 @@
 """Solver options and weights: refused when they make no sense, and convergence that means
 convergence (regressions of reported false convergence)."""
 
+import re
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -28,11 +30,12 @@ def stick_targets(stick):
 @pytest.mark.parametrize("kwargs, error, message", [
     (dict(rtol=-1.0), ValueError, "finite number >= 0"),
     (dict(atol=float("nan")), ValueError, "finite number >= 0"),
-    (dict(rtol="tight"), TypeError, "a tolerance is a number"),
+    (dict(rtol="tight"), TypeError, "finite number >= 0.*got str"),
     (dict(max_steps=-1), ValueError, "at least 1"),
     (dict(max_steps=10.0), TypeError, "whole number"),
     (dict(cg_steps=0), ValueError, "at least 1"),
-    (dict(cg_rtol=float("nan")), ValueError, "relative decrease"),
+    (dict(cg_rtol=float("nan")), ValueError, "finite number >= 0"),
+    (dict(cg_rtol=1.0), ValueError, "relative decrease"),
 ])
 def test_least_squares_options_are_checked(solver, kwargs, error, message):
     with pytest.raises(error, match=message):
@@ -114,3 +117,107 @@ def test_gradient_through_a_solve_that_stops_early(stick, stick_targets):
     assert bool(info.converged) and int(info.iterations) < 20000
     exact, approx = directional_derivatives(jax.jit(loss), stick_targets, h=1e-6)
     assert exact == pytest.approx(approx, rel=1e-5)
+
+
+def test_option_errors_name_the_solver_the_option_and_the_fix():
+    with pytest.raises(ValueError) as error:
+        mvcjax.GaussNewton(rtol=-1)
+    assert str(error.value) == (
+        "GaussNewton(rtol=-1): a tolerance must be a finite number >= 0 (or None for the "
+        "default 1e-10 in float64, 1e-5 in float32).")
+    with pytest.raises(TypeError, match=r"FixedG\(iterations=2.0\).*got float; write e.g. "
+                                        r"iterations=2\."):
+        mvcjax.FixedG(iterations=2.0)
+    mvcjax.FixedG(iterations=np.int64(3), unroll=0, anderson=np.int32(0))  # numpy ints pass
+    mvcjax.GaussNewton(rtol=0, atol=np.float32(1e-6))
+
+
+@pytest.mark.parametrize("make, error, message", [
+    (lambda: mvcjax.FixedG(unroll=-1), ValueError, r"FixedG\(unroll=-1\): needs at least 0"),
+    (lambda: mvcjax.FixedG(regularisation=-1e-3), ValueError, "regularisation"),
+    (lambda: mvcjax.Dogleg(cg_rtol="loose"), TypeError, r"Dogleg\(cg_rtol='loose'\)"),
+    (lambda: mvcjax.LevenbergMarquardt(cg_steps=4.0), TypeError, "cg_steps"),
+    (lambda: mvcjax.JaxoptGaussNewton(tol=float("inf")), ValueError, "finite number"),
+    (lambda: mvcjax.JaxoptLevenbergMarquardt(max_steps=False), TypeError, "whole number"),
+    (lambda: mvcjax.FixedG().fixed_steps(2.5), TypeError, r"fixed_steps\(2.5\)"),
+    (lambda: mvcjax.GaussNewton().fixed_steps(0), ValueError, "at least 1 step"),
+])
+def test_more_options_are_checked(make, error, message):
+    with pytest.raises(error, match=message):
+        make()
+
+
+def test_weights_out_of_float32_range_are_refused():
+    with pytest.raises(ValueError, match=r"outside \[1e-36, 1e\+36\]"):
+        mvcjax.Weights(1e-40, 1e-40, 1e-40, 1e-39)
+    with pytest.raises(ValueError,
+                       match=r"1.0e\+30 times Weights\(handle=1e-30\).*1e-08 to 1e\+08"):
+        mvcjax.Weights(handle=1e-30)
+    mvcjax.Weights(laplacian=0.0, mvc=0.0, length=1.0, handle=1e8)  # zeros are not ratios
+
+
+def test_check_weights_says_how_to_write_weights():
+    from mvcjax._energy import check_weights
+
+    weights = mvcjax.Weights(handle=10.0)
+    assert check_weights(weights) is weights
+    expected = "weights must be an mvcjax.Weights, got dict; write mvcjax.Weights(**{'handle': 10})"
+    with pytest.raises(TypeError, match=re.escape(expected)):
+        check_weights({"handle": 10})
+    with pytest.raises(TypeError, match="rig_weights must be an mvcjax.Weights, got str"):
+        check_weights("stiff", name="rig_weights")
+
+
+@pytest.mark.parametrize("solver", [
+    mvcjax.FixedG(), mvcjax.FixedG(stop_early=True, iterations=50),
+    mvcjax.FixedG(stop_early=True, iterations=50, adjoint="implicit"),
+    mvcjax.FixedG(anderson=3), mvcjax.GaussNewton(), mvcjax.Dogleg(),
+    mvcjax.JaxoptGaussNewton(),
+], ids=repr)
+def test_an_overflowing_energy_is_not_converged(solver):
+    # A float32 target at 1e20 (in the rig's frame) met the step tolerances at once,
+    # and was reported converged with energy inf.
+    rig = datasets.model("stick").rig(dtype=jnp.float32)
+    targets = np.asarray(rig.frame.to_local(rig.handle_positions)).copy()
+    targets[0] = 1e20
+    _, info = solver.solve(rig.energy, rig.factor, jnp.asarray(targets), rig.energy.rest)
+    assert not np.isfinite(float(info.energy))
+    assert not bool(info.converged)
+
+
+def test_rescaled_info_is_not_converged_once_its_energy_overflows():
+    info = mvcjax.SolveInfo(converged=jnp.asarray(True), iterations=jnp.asarray(3),
+                            energy=jnp.asarray(1e30, jnp.float32))
+    assert bool(info.rescaled(10.0).converged)
+    assert float(info.rescaled(10.0).energy) == pytest.approx(1e31, rel=1e-6)
+    assert not bool(info.rescaled(jnp.float32(1e10)).converged)  # 1e40 overflows float32
+    assert not bool(info.rescaled(1.0, jnp.array([[0.0, jnp.nan]])).converged)
+
+
+def test_stopping_early_leaves_the_primal_unchanged(stick, stick_targets):
+    early = mvcjax.FixedG(iterations=5000, rtol=1e-7, stop_early=True)
+    vertices, info = stick.solve(stick_targets, early, return_info=True)
+    steps = int(info.iterations)
+    assert bool(info.converged) and 1 < steps < 5000
+    fixed, fixed_info = stick.solve(stick_targets, mvcjax.FixedG(iterations=steps, unroll=0),
+                                    return_info=True)
+    np.testing.assert_array_equal(vertices, fixed)
+    assert float(info.energy) == float(fixed_info.energy)
+
+
+def test_forward_mode_through_a_solve_that_stops_early(stick, stick_targets):
+    # The checkpointed loop that reverse mode needs refuses forward mode; the implicit
+    # adjoint, which the docstring names for it, supports both.
+    def loss(solver, t):
+        return jnp.sum(stick.deform(t, solver)[::7] ** 2)
+
+    d = jnp.ones_like(stick_targets)
+    unrolled = mvcjax.FixedG(iterations=20000, rtol=1e-9, stop_early=True)
+    with pytest.raises(TypeError, match="forward-mode"):
+        jax.jvp(lambda t: loss(unrolled, t), (stick_targets,), (d,))
+    implicit = mvcjax.FixedG(iterations=20000, rtol=1e-12, stop_early=True, anderson=5,
+                             adjoint="implicit")
+    _, tangent = jax.jvp(lambda t: loss(implicit, t), (stick_targets,), (d,))
+    h = 1e-3  # each solve stops within its tolerance of the minimum: no smaller steps
+    approx = (loss(implicit, stick_targets + h * d) - loss(implicit, stick_targets - h * d)) / (2 * h)
+    assert float(tangent) == pytest.approx(float(approx), rel=1e-5)

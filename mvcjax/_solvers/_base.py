@@ -27,6 +27,16 @@ class SolveInfo(eqx.Module):
     iterations: Int[Array, ""]
     energy: Float[Array, ""]
 
+    def rescaled(self, energy_factor, vertices=None) -> SolveInfo:
+        """The info with the energy times `energy_factor` (from the rig's frame to the
+        user's units), no longer converged if that energy (or the given `vertices`, in
+        those units) is not finite: a finite solve in the frame may overflow outside it."""
+        energy = self.energy * energy_factor
+        converged = self.converged & jnp.isfinite(energy)
+        if vertices is not None:
+            converged = converged & jnp.all(jnp.isfinite(vertices))
+        return SolveInfo(converged=converged, iterations=self.iterations, energy=energy)
+
 
 class AbstractSolver(eqx.Module):
     """A solver of the energy (6): a frozen configuration with one `solve` method.
@@ -77,27 +87,39 @@ class AbstractSolver(eqx.Module):
         raise NotImplementedError(f"{type(self).__name__} does not record its history.")
 
 
+def python_scalar(value):
+    """A numpy scalar as the Python number it holds (static fields must hash and compare
+    as plain values); anything else unchanged, for the checks to judge."""
+    return value.item() if isinstance(value, (np.integer, np.floating)) else value
+
+
 def check_count(solver: AbstractSolver, name: str, minimum: int = 1) -> None:
-    """Refuse an option that must be a whole number of at least `minimum`."""
+    """Refuse an option that must be a whole number (a Python or numpy int, not a bool
+    or a float) of at least `minimum`: TypeError for the type, ValueError for the value."""
     value = getattr(solver, name)
+    where = f"{type(solver).__name__}({name}={value!r})"
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise TypeError(f"{type(solver).__name__}({name}={value!r}): a whole number is needed.")
+        whole = isinstance(value, float) and value.is_integer() and value >= minimum
+        raise TypeError(f"{where}: a whole number (int) >= {minimum} is needed, got "
+                        f"{type(value).__name__}; write e.g. "
+                        f"{name}={int(value) if whole else max(minimum, 1)}.")
     if value < minimum:
-        raise ValueError(f"{type(solver).__name__}({name}={value}): needs at least {minimum}.")
+        raise ValueError(f"{where}: needs at least {minimum}.")
 
 
 def check_tolerance(solver: AbstractSolver, name: str, default: str = "") -> None:
-    """Refuse a tolerance that is not a finite number >= 0 (None: the default, if any)."""
+    """Refuse a tolerance that is not a finite real number >= 0 (None means the default,
+    where there is one): TypeError for the type, ValueError for the value."""
     value = getattr(solver, name)
     if value is None and default:
         return
-    fix = f" (or None for the default, {default})" if default else ""
+    where = f"{type(solver).__name__}({name}={value!r})"
+    fix = f" (or None for the default {default})" if default else ""
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise TypeError(f"{type(solver).__name__}({name}={value!r}): a tolerance is a number"
-                        f"{fix}.")
+        raise TypeError(f"{where}: a tolerance must be a finite number >= 0{fix}, got "
+                        f"{type(value).__name__}.")
     if not np.isfinite(value) or value < 0:
-        raise ValueError(f"{type(solver).__name__}({name}={value}): a tolerance must be a "
-                         f"finite number >= 0{fix}.")
+        raise ValueError(f"{where}: a tolerance must be a finite number >= 0{fix}.")
 
 
 def honest(converged: Array, vertices: Array, energy: Array) -> Array:
@@ -107,6 +129,11 @@ def honest(converged: Array, vertices: Array, energy: Array) -> Array:
 
 
 def check_steps(solver: AbstractSolver, steps: int) -> int:
+    """`steps` for `fixed_steps`, refused unless a whole number >= 1."""
+    where = f"{type(solver).__name__}.fixed_steps({steps!r})"
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)):
+        raise TypeError(f"{where}: the number of steps must be a whole number (int) >= 1, got "
+                        f"{type(steps).__name__}.")
     if steps < 1:
-        raise ValueError(f"{type(solver).__name__}.fixed_steps({steps}): needs at least 1 step.")
-    return steps
+        raise ValueError(f"{where}: needs at least 1 step.")
+    return int(steps)

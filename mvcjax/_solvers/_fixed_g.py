@@ -12,7 +12,15 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from .._energy import total_energy
-from ._base import AbstractSolver, SolveInfo, check_count, check_steps, check_tolerance, honest
+from ._base import (
+    AbstractSolver,
+    SolveInfo,
+    check_count,
+    check_steps,
+    check_tolerance,
+    honest,
+    python_scalar,
+)
 from ._least_squares import ScaledProblem
 from ._normal_cg import hessian_solve
 
@@ -70,9 +78,13 @@ class FixedG(AbstractSolver):
         iterations: the number of steps (the maximum with `stop_early`).
         rtol: convergence tolerance on the largest vertex move `|G b(V) - V|`, relative
             to the rest bounding-box diagonal. `converged` reports whether it was met.
-        stop_early: stop as soon as the tolerance is met (a checkpointed while loop,
-            which `jax.grad` differentiates by recomputing from checkpoints; for a solve
-            run to convergence `adjoint="implicit"` is cheaper and exact at the minimum).
+        stop_early: stop as soon as the tolerance is met. With the default adjoint this
+            runs equinox's checkpointed while loop: as fast as a plain one, and reverse
+            mode (`jax.grad`) differentiates the iterations run by recomputing them from
+            checkpoints, but forward mode (`jax.jvp`, `jax.jacfwd`) is refused (JAX's
+            TypeError about a custom_vjp function). `adjoint="implicit"` supports both
+            modes, and for a solve run to convergence it is cheaper and exact at the
+            minimum.
         adjoint: how gradients flow through the solve. `"unrolled"` (default)
             differentiates every iteration of the fixed-length loop: exact for what
             was computed, even after 15 iterations, at the memory cost of all of them
@@ -88,14 +100,19 @@ class FixedG(AbstractSolver):
         regularisation: the ridge, relative to the trace of the system.
         unroll: fully unroll a fixed-length loop of at most this many steps (fewer
             dispatches of tiny kernels, longer compilation).
+
+    Refused, naming the option (TypeError for a wrong type, ValueError for a bad
+    value): `iterations` not a whole number >= 1, `anderson` or `unroll` not a whole
+    number >= 0, `rtol` or `regularisation` not a finite number >= 0, an unknown
+    `adjoint`, and `adjoint="implicit"` without `stop_early=True`.
     """
 
-    iterations: int = eqx.field(default=15, static=True)
-    rtol: float = eqx.field(default=1e-6, static=True)
+    iterations: int = eqx.field(default=15, static=True, converter=python_scalar)
+    rtol: float = eqx.field(default=1e-6, static=True, converter=python_scalar)
     stop_early: bool = eqx.field(default=False, static=True)
-    anderson: int = eqx.field(default=0, static=True)
-    regularisation: float = eqx.field(default=1e-10, static=True)
-    unroll: int = eqx.field(default=32, static=True)
+    anderson: int = eqx.field(default=0, static=True, converter=python_scalar)
+    regularisation: float = eqx.field(default=1e-10, static=True, converter=python_scalar)
+    unroll: int = eqx.field(default=32, static=True, converter=python_scalar)
     adjoint: str = eqx.field(default="unrolled", static=True)
 
     def __check_init__(self):

@@ -17,7 +17,13 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ._base import AbstractSolver, check_count, check_steps, check_tolerance
+from ._base import (
+    AbstractSolver,
+    check_count,
+    check_steps,
+    check_tolerance,
+    python_scalar,
+)
 from ._least_squares import ScaledProblem, check_jacobian_fits
 
 
@@ -38,10 +44,14 @@ class _JaxoptLeastSquares(AbstractSolver):
             float64, 1e-4 in float32: a gradient, not a step, so about the square of
             the step tolerance of the optimistix solvers' scale).
         max_steps: the step budget; `converged` is false if it ran out first.
+
+    Refused, naming the option (TypeError for a wrong type, ValueError for a bad
+    value): `tol` other than None or a finite number >= 0, `max_steps` not a whole
+    number >= 1.
     """
 
-    tol: float | None = eqx.field(default=None, static=True)
-    max_steps: int = eqx.field(default=256, static=True)
+    tol: float | None = eqx.field(default=None, static=True, converter=python_scalar)
+    max_steps: int = eqx.field(default=256, static=True, converter=python_scalar)
 
     def __check_init__(self):
         check_tolerance(self, "tol", "1e-8 in float64, 1e-4 in float32")

@@ -13,7 +13,13 @@ import lineax as lx
 import optimistix as optx
 from jaxtyping import Array
 
-from ._base import AbstractSolver, check_count, check_steps, check_tolerance
+from ._base import (
+    AbstractSolver,
+    check_count,
+    check_steps,
+    check_tolerance,
+    python_scalar,
+)
 from ._descents import (
     DoglegDescent,
     StructuredDampedNewtonDescent,
@@ -59,14 +65,19 @@ class _OptimistixLeastSquares(AbstractSolver):
             gap of the benchmark on the horse in 32 to 35 steps; without, 4 take 110 to
             122 and 8 take 28 to 55. `False` solves with the Gauss-Newton matrix itself
             (exact steps with a large `cg_steps`).
+
+    Refused, naming the option (TypeError for a wrong type, ValueError for a bad
+    value): tolerances other than None or a finite number >= 0, `max_steps` or
+    `cg_steps` not a whole number >= 1, `cg_rtol` outside `[0, 1)`, an unknown
+    `linear_solver`.
     """
 
-    rtol: float | None = eqx.field(default=None, static=True)
-    atol: float | None = eqx.field(default=None, static=True)
-    max_steps: int = eqx.field(default=256, static=True)
+    rtol: float | None = eqx.field(default=None, static=True, converter=python_scalar)
+    atol: float | None = eqx.field(default=None, static=True, converter=python_scalar)
+    max_steps: int = eqx.field(default=256, static=True, converter=python_scalar)
     linear_solver: str = eqx.field(default="cg", static=True)
-    cg_steps: int = eqx.field(default=4, static=True)
-    cg_rtol: float = eqx.field(default=1e-2, static=True)
+    cg_steps: int = eqx.field(default=4, static=True, converter=python_scalar)
+    cg_rtol: float = eqx.field(default=1e-2, static=True, converter=python_scalar)
     cg_deflate: bool = eqx.field(default=True, static=True)
 
     def __check_init__(self):
@@ -79,7 +90,8 @@ class _OptimistixLeastSquares(AbstractSolver):
                 f"{type(self).__name__}(linear_solver={self.linear_solver!r}): choose one of "
                 f"{LINEAR_SOLVERS}."
             )
-        if not 0 <= self.cg_rtol < 1:
+        check_tolerance(self, "cg_rtol")
+        if not self.cg_rtol < 1:
             raise ValueError(
                 f"{type(self).__name__}(cg_rtol={self.cg_rtol}): a relative decrease, in [0, 1)."
             )
