@@ -64,10 +64,9 @@ def _igl():
 
 def _edge_count(faces) -> int:
     import numpy as np
+    from mvcjax._topology import edges
 
-    f = np.asarray(faces)
-    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-    return int(len(np.unique(e, axis=0)))
+    return len(edges(np.asarray(faces)))
 
 
 def _built(build):

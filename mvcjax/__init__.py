@@ -18,8 +18,19 @@ from ._metrics import (
     flipped_triangles as flipped_triangles,
     smoothness as smoothness,
 )
-from ._rig import ControlMesh as ControlMesh, Rig as Rig, ShapeMesh as ShapeMesh, Skinning as Skinning
-from ._shape import Shape as Shape
+from ._rig import ControlMesh as ControlMesh, Rig as Rig, ShapeMesh as ShapeMesh
+from ._shape import (
+    Shape as Shape,
+    pixels_to_points as pixels_to_points,
+    points_to_pixels as points_to_pixels,
+)
+from ._skinning import (
+    AbstractSkinning as AbstractSkinning,
+    BarycentricSkinning as BarycentricSkinning,
+    BlendedMVCSkinning as BlendedMVCSkinning,
+    MVCSkinning as MVCSkinning,
+    Skinning as Skinning,
+)
 from ._solvers import (
     AbstractSolver as AbstractSolver,
     Dogleg as Dogleg,

@@ -6,6 +6,7 @@ import numpy as np
 from jaxtyping import Float, Int
 
 from ._coordinates import _cross
+from ._topology import face_pairs
 
 
 def difference(
@@ -32,20 +33,6 @@ def deformation_gradients(
     return edges(deformed) @ np.linalg.inv(edges(rest))
 
 
-def interior_edges(faces: Int[np.ndarray, "f 3"]) -> Int[np.ndarray, "e 2"]:
-    """Pairs of faces sharing an edge."""
-    faces = np.asarray(faces)
-    f = len(faces)
-    u = faces.reshape(-1)
-    v = np.roll(faces, -1, axis=1).reshape(-1)
-    key = np.minimum(u, v).astype(np.int64) * (faces.max() + 1) + np.maximum(u, v)
-    owner = np.repeat(np.arange(f), 3)
-    order = np.argsort(key, kind="stable")
-    key, owner = key[order], owner[order]
-    same = np.flatnonzero(key[1:] == key[:-1])
-    return np.stack([owner[same], owner[same + 1]], axis=1)
-
-
 def smoothness(
     rest: Float[np.ndarray, "n 2"], deformed: Float[np.ndarray, "n 2"], faces: Int[np.ndarray, "f 3"]
 ) -> float:
@@ -53,7 +40,7 @@ def smoothness(
     (Frobenius norm): 0 for an affine map, small for a smooth deformation, large where
     the skinning has kinks or tears along control edges."""
     grads = deformation_gradients(rest, deformed, faces)
-    pairs = interior_edges(faces)
+    pairs = face_pairs(np.asarray(faces))
     jump = grads[pairs[:, 0]] - grads[pairs[:, 1]]
     return float(np.linalg.norm(jump, axis=(1, 2)).sum())
 

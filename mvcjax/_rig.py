@@ -12,11 +12,18 @@ from scipy.spatial import cKDTree
 
 from . import _coordinates as coords
 from . import _meshing as meshing
+from . import _topology as topology
 from ._checks import as_points, kind_of
 from ._energy import Energy, Weights, check_weights, rigid_start, total_energy
 from ._factor import AbstractFactor, make_factor
 from ._frame import Frame, bounding_frame, check_representable, frame_array
 from ._shape import Shape
+from ._skinning import (
+    AbstractSkinning,
+    BarycentricSkinning,
+    Skinning,
+    as_skinning,
+)
 from ._solvers import AbstractSolver, FixedG
 
 
@@ -50,37 +57,6 @@ class ControlMesh(eqx.Module):
     outer: Int[Array, " p"]
     inner: Int[Array, " g"]
     handles: Int[Array, " h"]
-
-
-class Skinning(eqx.Module):
-    """Each shape vertex as a weighted sum of a few control vertices: `V_S = W V_C`.
-
-    Attributes:
-        indices: `(n, k)` control vertices of each shape vertex (padded with 0).
-        weights: `(n, k)` their weights (0 on padding); rows sum to 1.
-    """
-
-    indices: Int[Array, "n k"]
-    weights: Float[Array, "n k"]
-
-    def __call__(self, control_vertices: Float[Array, "c 2"]) -> Float[Array, "n 2"]:
-        # Points as complex numbers: gathering one complex scalar per index is about
-        # three times faster on the CPU than gathering a row of two floats.
-        z = jax.lax.complex(control_vertices[:, 0], control_vertices[:, 1])
-
-        def one(index, weight):
-            return jnp.sum(weight * z[index])
-
-        out = jax.vmap(one)(self.indices, self.weights)
-        return jnp.stack([jnp.real(out), jnp.imag(out)], axis=1)
-
-    def matrix(self, control_count: int) -> Float[Array, "n c"]:
-        """`W` as a dense `(n, control_count)` matrix: for many frames at once, one matrix
-        product beats the gather (11 times faster for 256 frames on the 6k horse)."""
-        n = self.indices.shape[0]
-        return jnp.zeros((n, control_count), self.weights.dtype).at[
-            jnp.arange(n)[:, None], self.indices
-        ].add(self.weights)
 
 
 def _array(a, dtype) -> Array:
@@ -203,7 +179,7 @@ def _laplacian_index(loops: list[np.ndarray]) -> np.ndarray:
 
 def _loops_and_inner(vertices, faces):
     """A mesh's boundary loops (`V_CP`, the outer loop first) and its other vertices (`V_CG`)."""
-    loops = coords.boundary_loops(faces)
+    loops = topology.boundary_loops(faces)
     loops.sort(key=lambda lp: -abs(shapely.Polygon(vertices[lp]).area))
     on_loop = np.zeros(len(vertices), bool)
     on_loop[np.concatenate(loops)] = True
@@ -312,7 +288,7 @@ class Rig(eqx.Module):
         margin: float | None = None,
         weights: Weights | None = None,
         control=None,
-        skinning: str = "blended",
+        skinning: AbstractSkinning | str = "blended",
         factor: str | None = None,
         dtype=None,
         max_triangles: int = 400_000,
@@ -340,11 +316,12 @@ class Rig(eqx.Module):
                 your own, as `(vertices (c, 2), faces (f, 3))`, covering the shape, with a
                 vertex at every handle. Its boundary loops are `V_CP`, every other vertex
                 is `V_CG`.
-            skinning: how the shape mesh follows the control mesh: `"blended"`
-                (default: MVC over the corners' stars blended by barycentric
-                coordinates; continuous, and the smoothest), `"mvc"` (the paper's eq. 1,
-                which jumps across control edges) or `"barycentric"` (the paper's
-                "control mesh only"). Ignored with `control="shape"`.
+            skinning: how the shape mesh follows the control mesh:
+                `mvcjax.BlendedMVCSkinning()` (default: continuous, and the smoothest),
+                `mvcjax.MVCSkinning()` (the paper's eq. 1, which jumps across control
+                edges) or `mvcjax.BarycentricSkinning()` (the paper's "control mesh
+                only"); the short names `"blended"`, `"mvc"` and `"barycentric"` work too.
+                Ignored with `control="shape"` (the shape mesh carries itself).
             factor: the global step of the fixed-G iteration: `"dense"` (the paper's `G`,
                 recomputed inside `jit` when weights change), `"sparse"` (a sparse LU of
                 the normal matrix, for meshes of thousands of vertices), or `None` (by
@@ -363,8 +340,7 @@ class Rig(eqx.Module):
         dtype = _check_dtype(dtype)
         handles = _check_handles(shape, handles)
         weights = Weights() if weights is None else check_weights(weights)
-        if skinning not in SKINNINGS:
-            raise ValueError(f"skinning must be one of {SKINNINGS}, got {skinning!r}.")
+        skinning = as_skinning(skinning)
         if isinstance(max_triangles, bool) or not isinstance(max_triangles, (int, np.integer)) \
                 or max_triangles < 1:
             raise ValueError(f"max_triangles must be a positive integer, got {max_triangles!r}.")
@@ -409,21 +385,22 @@ class Rig(eqx.Module):
             )
             control_vertices = (control_vertices - centre) / scale
 
-        skin_index, skin_weight = _skinning_weights(
-            shape_vertices, control_vertices, control_faces, skinning
+        skin_index, skin_weight = skinning.weights_at(
+            shape_vertices, control_vertices, control_faces, what="shape vertices"
         )
         _check_rig(shape_vertices, control_vertices, control_faces, skin_index, skin_weight)
         return cls._assemble(
             (shape_vertices, shape_faces, shape_handles),
             (control_vertices, control_faces, loops, inner, control_handles),
-            (skin_index, skin_weight), weights, factor, dtype, frame,
+            (skin_index, skin_weight, skinning), weights, factor, dtype, frame,
         )
 
     @classmethod
     def _full(cls, vertices, faces, handles, weights, factor, dtype, frame) -> Rig:
         """The shape mesh as its own control mesh, carried by the identity."""
         loops, inner = _loops_and_inner(vertices, faces)
-        identity = (np.arange(len(vertices))[:, None], np.ones((len(vertices), 1)))
+        identity = (np.arange(len(vertices))[:, None], np.ones((len(vertices), 1)),
+                    BarycentricSkinning())
         return cls._assemble(
             (vertices, faces, handles),
             (vertices, faces, loops, inner, handles),
@@ -447,7 +424,7 @@ class Rig(eqx.Module):
                 world(control_vertices), _ints(control_faces),
                 _ints(np.concatenate(loops)), _ints(inner), _ints(control_handles),
             ),
-            skinning=Skinning(_ints(skinning[0]), _array(skinning[1], dtype)),
+            skinning=Skinning(_ints(skinning[0]), _array(skinning[1], dtype), skinning[2]),
             energy=energy,
             factor=make_factor(energy, factor),
             frame=frame_array(centre, scale, dtype),
@@ -588,6 +565,22 @@ class Rig(eqx.Module):
         """Shape-mesh vertices carried by the control vertices (`V_S = W V_C`)."""
         return self.frame.to_world(self.skinning(self.frame.to_local(control_vertices)))
 
+    def weights_at(self, points: Float[np.ndarray, "n 2"]) -> Skinning:
+        """Skinning weights for any rest points the control mesh covers: pixels,
+        landmarks, a finer mesh. `rig.weights_at(points)(control_vertices)` carries them
+        as `skin` carries the shape mesh, with the rig's skinning method.
+
+        Args:
+            points: `(n, 2)` rest points, in the user's coordinates.
+        """
+        points = as_points(points, "points", "n")
+        centre, scale = np.asarray(self.frame.centre, np.float64), float(self.frame.scale)
+        control = (np.asarray(self.control_mesh.vertices, np.float64) - centre) / scale
+        index, weight = self.skinning.method.weights_at(
+            (points - centre) / scale, control, np.asarray(self.control_mesh.faces)
+        )
+        return Skinning(_ints(index), _array(weight, self.energy.rest.dtype), self.skinning.method)
+
     def deform(
         self,
         targets: Float[Array, "h 2"],
@@ -654,88 +647,16 @@ def _deform(rig: Rig, targets, solver: AbstractSolver, init):
     return rig.frame.to_world(rig.skinning(vertices)), info
 
 
-SKINNINGS = ("mvc", "blended", "barycentric")
-
-
-def _skinning_weights(shape_vertices, control_vertices, control_faces, method):
-    """Each shape vertex as a combination of control vertices: `(index, weight)`, `(n, k)`.
-
-    - "mvc": the paper's eq. 1, MVC over the containing triangle and its edge neighbours.
-      Discontinuous across control edges: neighbours on either side use other polygons.
-    - "blended": MVC over the star of each corner of the containing triangle, blended by
-      the barycentric coordinates `b`; two triangles sharing an edge agree along it, so
-      the map is continuous. Each corner's term is corrected by `b_v (e_v - MVC(v))`,
-      which vanishes on the star's rim and makes the map interpolate the control
-      vertices (a shape vertex on a control vertex follows it exactly).
-    - "barycentric": the containing triangle's barycentric coordinates (the paper's
-      "control mesh only"): continuous, piecewise linear, with kinks along control edges.
-    """
-    face, depth = coords.locate_points(shape_vertices, control_vertices, control_faces)
-    outside = np.flatnonzero(depth < -1e-9)
-    if len(outside):
-        raise ValueError(
-            f"{len(outside)} shape vertices lie outside the control mesh (e.g. "
-            f"{shape_vertices[outside[0]].round(6).tolist()}); the control mesh must cover the "
-            "whole shape."
-        )
-    corners = control_faces[face]
-    bary = coords.barycentric_coordinates(shape_vertices, control_vertices[corners])
-    if method == "barycentric":
-        return corners, bary
-    if method == "mvc":
-        polygons, valid = coords.face_star_polygons(
-            control_faces, coords.face_neighbours(control_faces)
-        )
-        index, valid = polygons[face], valid[face]
-        return index, coords.mean_value_coordinates(
-            shape_vertices, control_vertices[index], valid
-        )
-    stars, star_valid = coords.vertex_stars(control_faces, len(control_vertices))
-    # MVC of each control vertex in its own star: one-hot on the boundary, the M term's
-    # weights inside. The blend corrects by it so that a shape vertex on a control vertex
-    # follows that vertex exactly.
-    at_vertex = coords.mean_value_coordinates(control_vertices, control_vertices[stars], star_valid)
-    index, weight = [corners], [bary**2]
-    for k in range(3):
-        v = corners[:, k]
-        w = coords.mean_value_coordinates(shape_vertices, control_vertices[stars[v]], star_valid[v])
-        index.append(stars[v])
-        weight.append(bary[:, k : k + 1] * (w - bary[:, k : k + 1] * at_vertex[v]))
-    return _merge_duplicates(np.concatenate(index, axis=1), np.concatenate(weight, axis=1))
-
-
-def _merge_duplicates(index, weight):
-    """Rows of `(index, weight)` with each index once (weights summed), padded with zeros."""
-    order = np.argsort(index, axis=1, kind="stable")
-    index = np.take_along_axis(index, order, axis=1)
-    weight = np.take_along_axis(weight, order, axis=1)
-    new = np.ones(index.shape, bool)
-    new[:, 1:] = index[:, 1:] != index[:, :-1]
-    slot = np.cumsum(new, axis=1) - 1
-    rows = np.broadcast_to(np.arange(len(index))[:, None], index.shape)
-    merged_index = np.zeros((len(index), slot.max() + 1), index.dtype)
-    merged_weight = np.zeros((len(index), slot.max() + 1), weight.dtype)
-    merged_index[rows, slot] = index
-    np.add.at(merged_weight, (rows, slot), weight)
-    return merged_index, merged_weight
-
-
 def _energy_data(vertices, faces, loops, inner, handles, weights, dtype) -> Energy:
     """The energy's data for a control mesh in the rig's frame (unit diagonal)."""
     lap_index = _laplacian_index(loops)
     lap_vectors = vertices[lap_index[:, 0]] - 0.5 * (
         vertices[lap_index[:, 1]] + vertices[lap_index[:, 2]]
     )
-    stars, star_valid = coords.vertex_stars(faces, len(vertices))
+    stars, star_valid = topology.vertex_stars(faces, len(vertices))
     ring, valid = stars[inner], star_valid[inner]  # an inner vertex's star is its 1-ring
     ring_weight = coords.mean_value_coordinates(vertices[inner], vertices[ring], valid)
-    polygon_edges = {
-        tuple(sorted(e)) for lp in loops for e in zip(lp.tolist(), np.roll(lp, -1).tolist())
-    }
-    all_edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    all_edges = np.unique(all_edges, axis=0)
-    keep = np.array([tuple(e) not in polygon_edges for e in all_edges.tolist()], bool)
-    edges = all_edges[keep]
+    edges = topology.interior_edges(faces, loops)  # H: every edge off the polygon V_CP
     edge_length = np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1)
     return Energy(
         rest=_array(vertices, dtype),

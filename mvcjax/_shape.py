@@ -100,6 +100,23 @@ def _one_polygon(geometry, component) -> shapely.Polygon:
                     f"shapely {geometry.geom_type}.")
 
 
+def pixels_to_points(pixels: Float[np.ndarray, "*n 2"], rows: int) -> Float[np.ndarray, "*n 2"]:
+    """Image positions `(row, col)` to shape coordinates `(x, y)`, y up: the centre of
+    pixel `(row, col)` of an image with `rows` rows is `(col, rows - 1 - row)`.
+
+    This is the convention of `Shape.from_image`; fractional positions map linearly.
+    """
+    pixels = np.asarray(pixels, np.float64)
+    return np.stack([pixels[..., 1], rows - 1 - pixels[..., 0]], axis=-1)
+
+
+def points_to_pixels(points: Float[np.ndarray, "*n 2"], rows: int) -> Float[np.ndarray, "*n 2"]:
+    """Shape coordinates `(x, y)` to image positions `(row, col)`, the inverse of
+    `pixels_to_points`."""
+    points = np.asarray(points, np.float64)
+    return np.stack([rows - 1 - points[..., 1], points[..., 0]], axis=-1)
+
+
 class Shape:
     """A 2D shape: one simple outer polygon and zero or more holes, y up.
 
@@ -214,7 +231,8 @@ class Shape:
     ) -> Shape:
         """The silhouette of a binary image as a shape, in pixel units with y up.
 
-        Pixel `(row, col)` has its centre at `(x, y) = (col, rows - 1 - row)`. The
+        Pixel `(row, col)` has its centre at `(x, y) = (col, rows - 1 - row)`
+        (`pixels_to_points`, and back with `points_to_pixels`). The
         outline runs through the half-pixel boundary between foreground and
         background (scikit-image's marching squares), so a silhouette touching the
         image border is closed along the border.
@@ -278,8 +296,7 @@ class Shape:
         rows = mask.shape[0]
         padded = np.pad(mask, 1).astype(np.float64)
         contours = measure.find_contours(padded, 0.5)
-        # (row, col) in the padded image -> (x, y) with y up.
-        rings = [np.stack([c[:, 1] - 1.0, rows - c[:, 0]], axis=1) for c in contours]
+        rings = [pixels_to_points(c - 1.0, rows) for c in contours]  # unpadded
         areas = [abs(shapely.Polygon(r).area) for r in rings]
         order = np.argsort(areas)[::-1]
         outer_raw = rings[order[0]]

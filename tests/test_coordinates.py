@@ -2,13 +2,7 @@ import numpy as np
 import pytest
 
 from mvcjax import mean_value_coordinates
-from mvcjax._coordinates import (
-    barycentric_coordinates,
-    boundary_loops,
-    face_neighbours,
-    locate_points,
-    vertex_stars,
-)
+from mvcjax._coordinates import barycentric_coordinates, locate_points
 
 HEXAGON = np.array([[np.cos(a), np.sin(a)] for a in np.linspace(0, 2 * np.pi, 6, endpoint=False)])
 # A non-convex, star-shaped polygon, as the stars of eq. 1 often are.
@@ -64,17 +58,8 @@ def test_barycentric_reproduces_points():
     np.testing.assert_allclose(w @ tri[0], p)
 
 
-def test_mesh_topology_helpers():
-    # Two triangles forming a square, and a fan around an interior vertex.
+def test_locate_points():
     v = np.array([[0, 0], [1, 0], [1, 1], [0, 1], [0.5, 0.5]])
     f = np.array([[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]])
-    nb = face_neighbours(f)
-    assert nb[0].tolist() == [-1, 2, 3]  # across 0-1 none, across 1-4 vertex 2, across 4-0 vertex 3
-    stars, valid = vertex_stars(f, 5)
-    assert valid[4].sum() == 4 and sorted(stars[4][valid[4]].tolist()) == [0, 1, 2, 3]
-    # A boundary vertex's star is itself, then its fan of neighbours in order.
-    assert stars[0][valid[0]].tolist() == [0, 1, 4, 3]
-    loops = boundary_loops(f)
-    assert len(loops) == 1 and sorted(loops[0].tolist()) == [0, 1, 2, 3]
     face, depth = locate_points(np.array([[0.5, 0.1], [0.9, 0.5], [2.0, 2.0]]), v, f)
     assert face[:2].tolist() == [0, 1] and depth[0] > 0 and depth[2] < 0

@@ -18,7 +18,7 @@ from mvcjax._solvers._descents import (
 from mvcjax._solvers._least_squares import ScaledProblem, StructuredJacobian
 from mvcjax._solvers._optimistix import _GaussNewtonFamily
 
-from conftest import drag, local_point
+from conftest import local_point
 
 CHOLESKY = lx.Normal(lx.Cholesky())
 # CG to convergence (a looped budget), so that the steps are exact and comparable.

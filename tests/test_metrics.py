@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from mvcjax._metrics import difference, flipped_triangles, interior_edges, smoothness
+from mvcjax._metrics import difference, flipped_triangles, smoothness
 
 SQUARE = np.array([[0, 0], [1, 0], [1, 1], [0, 1], [0.5, 0.5]], float)
 FAN = np.array([[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]])
@@ -12,11 +12,6 @@ def test_difference_is_in_percent_of_the_diagonal():
     mean, worst = difference(moved, SQUARE, SQUARE)
     assert mean == pytest.approx(1.0) and worst == pytest.approx(1.0)
     assert difference(SQUARE, SQUARE, SQUARE) == (0.0, 0.0)
-
-
-def test_interior_edges_pair_adjacent_faces():
-    pairs = {tuple(sorted(p)) for p in interior_edges(FAN).tolist()}
-    assert pairs == {(0, 1), (1, 2), (2, 3), (0, 3)}
 
 
 def test_smoothness_is_zero_only_for_affine_maps():

@@ -12,7 +12,7 @@ from mvcjax._solvers import _normal_cg
 from mvcjax._solvers._least_squares import ScaledProblem
 from mvcjax._solvers._normal_cg import GaussNewtonMatrix, conjugate_gradient
 
-from conftest import drag, local_point
+from conftest import local_point
 
 
 def test_conjugate_gradient_solves_a_positive_definite_system():

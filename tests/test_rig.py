@@ -5,7 +5,7 @@ import pytest
 
 import mvcjax
 from mvcjax import datasets
-from mvcjax._coordinates import boundary_loops
+from mvcjax._topology import boundary_loops
 
 from conftest import directional_derivatives, drag, scipy_minimum
 
@@ -21,24 +21,6 @@ def test_public_arrays(horse_rig):
     inner = np.asarray(cm.vertices[cm.inner])
     d = np.min(np.linalg.norm(inner[:, None] - np.asarray(sm.vertices)[None], axis=2), axis=1)
     assert d.max() < 1e-9
-
-
-def test_skinning_weights_are_sound(horse_rig):
-    sk = horse_rig.skinning
-    assert bool(jnp.all(jnp.isfinite(sk.weights)))
-    np.testing.assert_allclose(sk.weights.sum(axis=1), 1.0, atol=1e-12)
-    np.testing.assert_allclose(horse_rig.skin(horse_rig.control_mesh.vertices),
-                               horse_rig.shape_mesh.vertices, atol=1e-9)  # linear precision
-    # A shape vertex that is a control vertex (every V_CG is) has a one-hot row.
-    handle_rows = sk.weights[horse_rig.shape_mesh.handles]
-    assert float(jnp.max(handle_rows, axis=1).min()) == 1.0
-
-
-def test_dense_skinning_matrix_is_the_same_map(horse_rig):
-    pose = horse_rig.control_mesh.vertices + jax.random.normal(
-        jax.random.key(2), horse_rig.control_mesh.vertices.shape)
-    dense = horse_rig.skinning.matrix(pose.shape[0])
-    np.testing.assert_allclose(dense @ pose, horse_rig.skin(pose), atol=1e-9)
 
 
 def test_rest_targets_give_the_rest_shape(horse_rig):
@@ -249,47 +231,3 @@ def test_bad_handles_and_targets_are_explained(horse, horse_rig):
     with pytest.raises(ValueError, match="not a vertex of the given control mesh"):
         cm = horse_rig.control_mesh
         mvcjax.Rig.build(horse, [[101.0, 200.0]], control=(np.asarray(cm.vertices), np.asarray(cm.faces)))
-
-
-@pytest.fixture(scope="module")
-def skinned_rigs(horse):
-    return {s: mvcjax.Rig.build(horse, datasets.horse_handles(), skinning=s)
-            for s in ["mvc", "blended", "barycentric"]}
-
-
-@pytest.mark.parametrize("skinning", ["mvc", "blended", "barycentric"])
-def test_every_skinning_is_exact_at_rest_and_interpolates(skinned_rigs, skinning):
-    rig = skinned_rigs[skinning]
-    w = rig.skinning.weights
-    assert bool(jnp.all(jnp.isfinite(w)))
-    np.testing.assert_allclose(w.sum(axis=1), 1.0, atol=1e-12)
-    np.testing.assert_allclose(rig.skin(rig.control_mesh.vertices), rig.shape_mesh.vertices,
-                               atol=1e-9)
-    # A shape vertex on a control vertex follows it exactly, in any pose.
-    pose = rig.control_mesh.vertices + jax.random.normal(jax.random.key(5),
-                                                         rig.control_mesh.vertices.shape)
-    np.testing.assert_allclose(rig.skin(pose)[rig.shape_mesh.handles],
-                               pose[rig.control_mesh.handles], atol=1e-9)
-
-
-def test_blended_skinning_is_smoothest_and_the_default(horse, skinned_rigs):
-    measured = {}
-    for name, rig in skinned_rigs.items():
-        out = rig.deform(rig.handle_positions + datasets.horse_drag())
-        measured[name] = mvcjax.smoothness(rig.shape_mesh.vertices, out, rig.shape_mesh.faces)
-    # The paper's per-triangle MVC jumps across control edges; the blend does not.
-    assert measured["blended"] < measured["barycentric"] < measured["mvc"], measured
-    # As smooth as the full solve on the shape mesh, at the paper's 15 iterations each.
-    full = mvcjax.Rig.build(horse, datasets.horse_handles(), control="shape")
-    out = full.deform(full.handle_positions + datasets.horse_drag())
-    assert measured["blended"] < 1.1 * mvcjax.smoothness(full.shape_mesh.vertices, out,
-                                                          full.shape_mesh.faces), measured
-    default = mvcjax.Rig.build(horse, datasets.horse_handles())
-    np.testing.assert_array_equal(default.skinning.indices, skinned_rigs["blended"].skinning.indices)
-
-
-def test_unknown_skinning_is_explained(horse):
-    with pytest.raises(ValueError, match="skinning must be one of"):
-        mvcjax.Rig.build(horse, datasets.horse_handles(), skinning="linear")
-    with pytest.raises(ValueError, match="skinning must be one of"):
-        mvcjax.Rig.build(horse, datasets.horse_handles(), skinning="linear", control="shape")

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import shapely
 
+import mvcjax
 from mvcjax import Shape
 
 SQUARE = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0]])
@@ -286,3 +287,17 @@ def test_a_one_pixel_line_matches_its_pixel_contour():
     raw = shapely.Polygon(contour).area  # about 30 - 0.5
     for m in (mask, mask.T):
         assert Shape.from_image(m).area == pytest.approx(raw, rel=0.05)
+
+
+def test_the_pixel_convention_is_code():
+    # One foreground pixel at (row 2, col 5) of a 7-row image: its square of outline is
+    # centred on the pixel's centre, and the two maps invert each other.
+    mask = np.zeros((7, 9), bool)
+    mask[2, 5] = True
+    shape = mvcjax.Shape.from_image(mask, tolerance=0)
+    np.testing.assert_allclose(shape.outer.mean(axis=0), mvcjax.pixels_to_points([2, 5], 7))
+    np.testing.assert_allclose(mvcjax.pixels_to_points([2, 5], 7), [5.0, 4.0])
+    rng = np.random.default_rng(0)
+    pixels = rng.uniform(-3, 10, (50, 2))
+    np.testing.assert_allclose(mvcjax.points_to_pixels(mvcjax.pixels_to_points(pixels, 7), 7),
+                               pixels)
