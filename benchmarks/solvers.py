@@ -93,10 +93,12 @@ def run_model(name: str, repeats: int) -> dict:
         reached = steps_to_gap(histories[solver_name], minimum)
         # Time the solve up to the gap, or over all recorded steps if it never got there.
         counts[solver_name] = max(steps if reached is None else reached, 2)
-        solve = jax.jit(lambda t, s=solver.fixed_steps(counts[solver_name]): rig.solve(t, s))
+        fixed = solver.fixed_steps(counts[solver_name])
+        solve = jax.jit(lambda t, s=fixed: rig.solve(t, s))
         compile_times[solver_name] = compile_ms(solve, targets)
         timed[solver_name] = (solve, [(targets,)])
-        half = jax.jit(lambda t, s=solver.fixed_steps(counts[solver_name] // 2): rig.solve(t, s))
+        fixed_half = solver.fixed_steps(counts[solver_name] // 2)
+        half = jax.jit(lambda t, s=fixed_half: rig.solve(t, s))
         timed[solver_name, "half"] = (half, [(targets,)])
     times = interleaved_median_ms(timed, repeats, block=3)
 

@@ -64,6 +64,7 @@ def _igl():
 
 def _edge_count(faces) -> int:
     import numpy as np
+
     from mvcjax._topology import edges
 
     return len(edges(np.asarray(faces)))
@@ -220,7 +221,8 @@ def format_table(rows) -> str:
             f"{r['na_difference_mean_pct']:.2f}% (max {r['na_difference_max_pct']:.2f}%) | "
             f"{_fmt(arap, '.2f') + ' ms' if arap else 'missing'} | "
             + (f"{r['arap_difference_mean_pct']:.2f}% | " if arap else "missing | ")
-            + f"{r['na_smoothness']:.0f} / {r['da_mvc_smoothness']:.0f} / {r['da_smoothness']:.0f} / "
+            + f"{r['na_smoothness']:.0f} / {r['da_mvc_smoothness']:.0f} / "
+            f"{r['da_smoothness']:.0f} / "
             f"{r['ra_smoothness']:.0f} / {_fmt(r.get('arap_smoothness'), '.0f')} |"
         )
         p = PAPER.get(r["model"])

@@ -57,7 +57,8 @@ def _demo(args) -> int:
     print(f"shape mesh : {rig.shape_mesh.vertices.shape[0]} vertices, "
           f"{rig.shape_mesh.faces.shape[0]} triangles")
     print(f"control    : {cm.vertices.shape[0]} vertices ({cm.outer.shape[0]} on the polygon, "
-          f"{cm.inner.shape[0]} inner), {cm.faces.shape[0]} triangles, {cm.handles.shape[0]} handles")
+          f"{cm.inner.shape[0]} inner), {cm.faces.shape[0]} triangles, "
+          f"{cm.handles.shape[0]} handles")
     print(f"dtype      : {rig.energy.rest.dtype}, device {jax.devices()[0].platform}")
     print(f"preprocess : {build * 1e3:.0f} ms (meshing, skinning weights, G)")
     print(f"compile    : {compile_time * 1e3:.0f} ms (solve + skin, once)")

@@ -94,8 +94,9 @@ class Weights(eqx.Module):
                 f"Weights({big}={v[big]:g}) is {ratio:.1e} times Weights({small}={v[small]:g}); "
                 f"positive weights must lie within a ratio of {MAX_WEIGHT_RATIO:.0e} of each "
                 f"other (ratios from {1 / MAX_WEIGHT_RATIO:.0e} to {MAX_WEIGHT_RATIO:.0e}), or the "
-                "normal matrix is singular in floating point (the smaller term is lost). Bring them closer, or set a term "
-                "you do not want to 0 (the handles' weight must stay positive)."
+                "normal matrix is singular in floating point (the smaller term is lost). Bring "
+                "them closer, or set a term you do not want to 0 (the handles' weight must stay "
+                "positive)."
             )
 
     def astype(self, dtype) -> Weights:

@@ -93,7 +93,9 @@ def sparse_operators(energy: Energy) -> tuple[scipy.sparse.csr_matrix, ...]:
     )
 
 
-def _local_rows(energy: Energy) -> tuple[Int[Array, "m 3"], Float[Array, "m 3"], Float[Array, " m"]]:
+def _local_rows(
+    energy: Energy,
+) -> tuple[Int[Array, "m 3"], Float[Array, "m 3"], Float[Array, " m"]]:
     """The Laplacian and edge rows merged, so that the local step is one gather: row `r`
     is `y_r = sum_k coef[r, k] V[rows[r, k]]`, its target `length[r] y_r / |y_r|`."""
     dtype = energy.rest.dtype
@@ -269,7 +271,8 @@ def dense_factor(energy: Energy) -> DenseFactor:
     rows, coef, rest_length = _local_rows(energy)
     return DenseFactor(
         shape=g[:, :split].T, handle=g[:, split:], normal=normal,
-        normal_inverse=jax.scipy.linalg.cho_solve(cho, jnp.eye(normal.shape[0], dtype=normal.dtype)),
+        normal_inverse=jax.scipy.linalg.cho_solve(
+            cho, jnp.eye(normal.shape[0], dtype=normal.dtype)),
         rows=rows, coef=coef, length=rest_length, rest=energy.rest.T, handles=energy.handles,
     )
 

@@ -21,7 +21,9 @@ def difference(
 
 
 def deformation_gradients(
-    rest: Float[np.ndarray, "n 2"], deformed: Float[np.ndarray, "n 2"], faces: Int[np.ndarray, "f 3"]
+    rest: Float[np.ndarray, "n 2"],
+    deformed: Float[np.ndarray, "n 2"],
+    faces: Int[np.ndarray, "f 3"],
 ) -> Float[np.ndarray, "f 2 2"]:
     """The constant deformation gradient of each triangle (rest -> deformed)."""
     rest, deformed = np.asarray(rest, np.float64), np.asarray(deformed, np.float64)
@@ -34,7 +36,9 @@ def deformation_gradients(
 
 
 def smoothness(
-    rest: Float[np.ndarray, "n 2"], deformed: Float[np.ndarray, "n 2"], faces: Int[np.ndarray, "f 3"]
+    rest: Float[np.ndarray, "n 2"],
+    deformed: Float[np.ndarray, "n 2"],
+    faces: Int[np.ndarray, "f 3"],
 ) -> float:
     """Sum over interior edges of the jump of the deformation gradient across the edge
     (Frobenius norm): 0 for an affine map, small for a smooth deformation, large where
@@ -46,7 +50,9 @@ def smoothness(
 
 
 def flipped_triangles(
-    rest: Float[np.ndarray, "n 2"], deformed: Float[np.ndarray, "n 2"], faces: Int[np.ndarray, "f 3"]
+    rest: Float[np.ndarray, "n 2"],
+    deformed: Float[np.ndarray, "n 2"],
+    faces: Int[np.ndarray, "f 3"],
 ) -> int:
     """How many triangles changed orientation."""
     faces = np.asarray(faces)

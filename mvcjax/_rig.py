@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -10,9 +12,7 @@ import shapely
 from jaxtyping import Array, Float, Int
 from scipy.spatial import cKDTree
 
-from . import _coordinates as coords
-from . import _meshing as meshing
-from . import _topology as topology
+from . import _coordinates as coords, _meshing as meshing, _topology as topology
 from ._checks import as_points, kind_of
 from ._energy import Energy, Weights, check_weights, rigid_start, total_energy
 from ._factor import AbstractFactor, make_factor
@@ -75,7 +75,9 @@ def _check_dtype(dtype):
     try:
         dt = np.dtype(dtype)
     except TypeError:
-        raise TypeError(f"dtype={dtype!r} is not a dtype; use jnp.float32 or jnp.float64.") from None
+        raise TypeError(
+            f"dtype={dtype!r} is not a dtype; use jnp.float32 or jnp.float64."
+        ) from None
     if dt not in (np.dtype(np.float32), np.dtype(np.float64)):
         raise ValueError(
             f"dtype={dt.name}: a rig is float32 or float64 (lower precisions cannot hold the "
@@ -159,8 +161,8 @@ def _check_mesh_size(local: Shape, shape_spacing: float, scale: float, max_trian
     estimate = local.area / (np.sqrt(3.0) / 4.0 * size**2)
     if estimate > max_triangles:
         if shape_spacing <= _thickness(local):
-            fix = (f"pass a larger shape_spacing (about {shape_spacing * scale * np.sqrt(estimate / max_triangles):.3g} "
-                   "for that many)")
+            larger = shape_spacing * scale * np.sqrt(estimate / max_triangles)
+            fix = f"pass a larger shape_spacing (about {larger:.3g} for that many)"
         else:
             fix = ("thicken the shape (its triangles cannot be larger than it is thick, "
                    f"about {_thickness(local) * scale:.3g}; e.g. shape.polygon.buffer)")
@@ -376,7 +378,7 @@ class Rig(eqx.Module):
                 loops, shape_vertices[inner_shape]
             )
             offsets = np.cumsum([0, *(len(lp) for lp in loops)])
-            loops = [np.arange(a, b) for a, b in zip(offsets[:-1], offsets[1:])]
+            loops = [np.arange(a, b) for a, b in itertools.pairwise(offsets)]
             inner = np.arange(offsets[-1], len(control_vertices))
             control_handles = inner[: len(handles)]
         else:
@@ -444,8 +446,10 @@ class Rig(eqx.Module):
         recompilation); a sparse factor is refactored on the host, outside `jit`.
         """
         weights = check_weights(weights)
-        energy = eqx.tree_at(lambda e: e.weights, self.energy, weights.astype(self.energy.rest.dtype))
-        return eqx.tree_at(lambda r: (r.energy, r.factor), self, (energy, self.factor.rebuild(energy)))
+        weights = weights.astype(self.energy.rest.dtype)
+        energy = eqx.tree_at(lambda e: e.weights, self.energy, weights)
+        factor = self.factor.rebuild(energy)
+        return eqx.tree_at(lambda r: (r.energy, r.factor), self, (energy, factor))
 
     def _local_start(self, local_targets, init):
         if isinstance(init, str):
@@ -457,7 +461,8 @@ class Rig(eqx.Module):
         init = jnp.asarray(init, self.energy.rest.dtype)
         if init.shape != self.energy.rest.shape:
             raise ValueError(
-                f"init must have the control mesh's shape {self.energy.rest.shape}, got {init.shape}."
+                f"init must have the control mesh's shape {self.energy.rest.shape}, got "
+                f"{init.shape}."
             )
         return self.frame.to_local(init)
 

@@ -15,8 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from . import _coordinates as coords
-from . import _topology as topology
+from . import _coordinates as coords, _topology as topology
 
 
 class AbstractSkinning(eqx.Module):

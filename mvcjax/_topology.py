@@ -86,7 +86,8 @@ def face_star_polygons(
     Returns vertex indices `(f, 6)`, compacted to the front, and which are valid.
     """
     poly = np.stack(
-        [faces[:, 0], neighbours[:, 0], faces[:, 1], neighbours[:, 1], faces[:, 2], neighbours[:, 2]],
+        [faces[:, 0], neighbours[:, 0], faces[:, 1], neighbours[:, 1],
+         faces[:, 2], neighbours[:, 2]],
         axis=1,
     )
     valid = poly >= 0

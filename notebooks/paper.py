@@ -5,6 +5,8 @@
 #     text_representation:
 #       extension: .py
 #       format_name: percent
+#       format_version: '1.3'
+#       jupytext_version: 1.19.6
 #   kernelspec:
 #     display_name: Python 3
 #     language: python
@@ -142,7 +144,8 @@ if table.exists():
           f"{'ARAP ms':>8} {'(da)-(ra)':>9}")
     for r in data["rows"]:
         print(f"{r['model']:10} {r['V_S']:6d} {r['V_CP'] + r['V_CG']:4d} {r['da_frame_ms']:8.3f} "
-              f"{r['ra_frame_ms']:8.2f} {r['ratio']:6.0f} {r.get('arap_frame_ms', float('nan')):8.2f} "
+              f"{r['ra_frame_ms']:8.2f} {r['ratio']:6.0f} "
+              f"{r.get('arap_frame_ms', float('nan')):8.2f} "
               f"{r['da_difference_mean_pct']:8.2f}%")
 else:
     print("No benchmark results next to this checkout: run benchmarks/table1.py.")

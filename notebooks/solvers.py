@@ -5,6 +5,8 @@
 #     text_representation:
 #       extension: .py
 #       format_name: percent
+#       format_version: '1.3'
+#       jupytext_version: 1.19.6
 #   kernelspec:
 #     display_name: Python 3
 #     language: python
@@ -132,7 +134,8 @@ print("steps to a relative gap of 1e-6:", to_gap)
 timed = {}
 for name, (solver, recorded_steps) in recorded.items():
     steps = to_gap[name] or recorded_steps
-    timed[name] = (jax.jit(lambda t, s=solver.fixed_steps(steps): rig.solve(t, s)), steps)
+    fixed = solver.fixed_steps(steps)
+    timed[name] = (jax.jit(lambda t, s=fixed: rig.solve(t, s)), steps)
     jax.block_until_ready(timed[name][0](targets))  # compile outside the timed region
 times = {name: [] for name in timed}
 for _ in range(7):

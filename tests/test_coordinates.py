@@ -6,7 +6,8 @@ from mvcjax._coordinates import barycentric_coordinates, locate_points
 
 HEXAGON = np.array([[np.cos(a), np.sin(a)] for a in np.linspace(0, 2 * np.pi, 6, endpoint=False)])
 # A non-convex, star-shaped polygon, as the stars of eq. 1 often are.
-STAR = np.array([[2, 0], [0.5, 0.5], [0, 2], [-0.5, 0.5], [-2, 0], [-0.5, -0.5], [0, -2], [0.5, -0.5]])
+STAR = np.array([[2, 0], [0.5, 0.5], [0, 2], [-0.5, 0.5],
+                 [-2, 0], [-0.5, -0.5], [0, -2], [0.5, -0.5]])
 
 
 def mvc(points, polygon):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import mvcjax
-from mvcjax._factor import DenseFactor, SparseFactor, dense_factor, sparse_factor, make_factor
+from mvcjax._factor import DenseFactor, SparseFactor, dense_factor, make_factor, sparse_factor
 
 from conftest import directional_derivatives, drag, local_point
 

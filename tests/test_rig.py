@@ -230,4 +230,5 @@ def test_bad_handles_and_targets_are_explained(horse, horse_rig):
         mvcjax.Rig.build(horse, datasets.horse_handles(), shape_spacing=-1.0)
     with pytest.raises(ValueError, match="not a vertex of the given control mesh"):
         cm = horse_rig.control_mesh
-        mvcjax.Rig.build(horse, [[101.0, 200.0]], control=(np.asarray(cm.vertices), np.asarray(cm.faces)))
+        mvcjax.Rig.build(horse, [[101.0, 200.0]],
+                         control=(np.asarray(cm.vertices), np.asarray(cm.faces)))

@@ -62,7 +62,8 @@ def test_blended_skinning_is_smoothest_and_the_default(horse, skinned_rigs):
     assert measured["blended"] < 1.1 * mvcjax.smoothness(full.shape_mesh.vertices, out,
                                                           full.shape_mesh.faces), measured
     default = mvcjax.Rig.build(horse, datasets.horse_handles())
-    np.testing.assert_array_equal(default.skinning.indices, skinned_rigs["blended"].skinning.indices)
+    np.testing.assert_array_equal(default.skinning.indices,
+                                  skinned_rigs["blended"].skinning.indices)
 
 
 def test_unknown_skinning_is_explained(horse):

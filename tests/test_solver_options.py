@@ -91,7 +91,7 @@ def test_weights_of_any_overall_scale_solve_alike(stick, stick_targets):
 @pytest.mark.parametrize("solver", LEAST_SQUARES, ids=lambda s: s.__name__)
 def test_negative_tolerances_no_longer_fake_convergence(solver, stick, stick_targets):
     # GaussNewton(rtol=-1, atol=-1) reported converged after one step at energy 5000.
-    good, info = stick.solve(stick_targets, solver(), return_info=True)
+    _good, info = stick.solve(stick_targets, solver(), return_info=True)
     assert bool(info.converged)
     zero = solver(rtol=0.0, atol=0.0, max_steps=5)
     _, info = stick.solve(stick_targets, zero, return_info=True)
@@ -219,5 +219,6 @@ def test_forward_mode_through_a_solve_that_stops_early(stick, stick_targets):
                              adjoint="implicit")
     _, tangent = jax.jvp(lambda t: loss(implicit, t), (stick_targets,), (d,))
     h = 1e-3  # each solve stops within its tolerance of the minimum: no smaller steps
-    approx = (loss(implicit, stick_targets + h * d) - loss(implicit, stick_targets - h * d)) / (2 * h)
+    up, down = loss(implicit, stick_targets + h * d), loss(implicit, stick_targets - h * d)
+    approx = (up - down) / (2 * h)
     assert float(tangent) == pytest.approx(float(approx), rel=1e-5)

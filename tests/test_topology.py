@@ -88,5 +88,5 @@ def test_pinched_meshes_are_named():
 
 
 def test_a_vertex_in_no_face_has_an_empty_star():
-    stars, valid = vertex_stars(FAN, 6)
+    _stars, valid = vertex_stars(FAN, 6)
     assert not valid[5].any()

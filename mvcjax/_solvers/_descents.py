@@ -114,7 +114,8 @@ class StructuredDampedNewtonDescent(_StructuredDescent):
     def init(self, y, f_info_struct):
         del f_info_struct
         # The first step is always accepted, so this state's step is never taken: zeros.
-        shapes = jax.eval_shape(lambda: GaussNewtonMatrix.at(self.problem, self.factor, y).at_point())
+        shapes = jax.eval_shape(
+            lambda: GaussNewtonMatrix.at(self.problem, self.factor, y).at_point())
         zeros = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
         no_step = (jnp.zeros_like(y), jnp.zeros_like(y), jnp.zeros((), y.dtype))
         return _DampedState(zeros, no_step, self._previous(y))

@@ -158,7 +158,7 @@ def conjugate_gradient(matvec, b, precondition, rtol: float, max_steps: int, def
         # as a mask, so that XLA fuses across iterations instead of running a loop.
         for _ in range(max_steps):
             keep = cond(carry)
-            carry = jax.tree.map(lambda a, b_: jnp.where(keep, a, b_), body(carry), carry)
+            carry = jax.tree.map(lambda a, b_, k=keep: jnp.where(k, a, b_), body(carry), carry)
     else:
         carry = jax.lax.while_loop(cond, body, carry)
     steps, x, *_ = carry
