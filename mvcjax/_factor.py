@@ -299,9 +299,8 @@ class _HostSolve:
         self.key = next(_HOST_KEYS)
         _HOST_SOLVES[self.key] = self
         # The normal matrix is symmetric positive definite: a symmetric ordering, with
-        # pivoting off so that SuperLU keeps it, gives a Cholesky-like fill. With the
-        # default partial pivoting, on the 19k-vertex horse the factor took 6.2 s instead
-        # of 0.13 s, and a solve 45 ms instead of 4.7.
+        # pivoting off so that SuperLU keeps it, gives a Cholesky-like fill; partial
+        # pivoting would break the symmetry and make large factors tens of times slower.
         self.lu = scipy.sparse.linalg.splu(
             normal, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
             options=dict(SymmetricMode=True),

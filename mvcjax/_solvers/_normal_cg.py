@@ -15,11 +15,9 @@ and `J^T r = N V - D^T W (c v + offset)`. `N` is what the fixed-G iteration fact
 conjugate-gradient iteration then costs one stencil gather and its scatter (the rotation
 terms) and one product with `N^{-1}`: the product with `N` itself is never formed, since
 the iteration carries it along (`conjugate_gradient`). The mean value rows, constant,
-live in `N` and cost nothing per iteration. Going through optimistix's matrix-free
-Jacobian instead (`jax.linearize` of the residuals, and its transpose, as earlier
-versions did) gathers and scatters the mean value rows too and forms every row's
-derivative: with the same iterates, Gauss-Newton, Dogleg and Levenberg-Marquardt took
-1.25 to 1.35 times as long to the same energy gap on the horse.
+live in `N` and cost nothing per iteration. Optimistix's matrix-free Jacobian
+(`jax.linearize` of the residuals, and its transpose) would gather and scatter the mean
+value rows too and form every row's derivative, for the same iterates.
 
 The rotations leave `J^T J` soft where `N` is stiff, so the iteration would need tens of
 steps to solve the system; a truncated Newton step runs 4 by default. Its first iterate
@@ -27,8 +25,8 @@ points along the fixed-G step (`N^{-1} J^T r` is `V` less the fixed-G step from 
 later ones improve on it within the Gauss-Newton model. The soft directions that a
 truncated solve leaves out are what the steps keep returning to, and the last step
 carries them: each solve is also deflated by it (`GaussNewtonMatrix.solve`), which
-takes Gauss-Newton on the horse from 110 steps to 32 with 4 iterations (and from 28
-with 8 plain ones), for about 1.5 fixed-G steps more per step (8.1 to 9.6, same run).
+cuts the number of steps severalfold for a little more work per step
+(`benchmarks/solvers.py` measures both).
 
 Gradients through a solve need the Hessian of the energy at the solution instead:
 `HessianCG` solves with it by the same preconditioned conjugate gradients, so that the

@@ -54,8 +54,8 @@ class _OptimistixLeastSquares(AbstractSolver):
             Gauss-Newton step with the residuals linearised in closed form
             (`_StructuredGaussNewton`). `"cholesky"` materialises the
             Jacobian by forward-mode autodiff and factors its normal matrix: exact
-            steps, each about 50 times as expensive on the horse (about 20 times slower to
-            a 1e-6 energy gap), refused above 1 GiB.
+            steps, each far more expensive (`benchmarks/solvers.py` compares them),
+            refused above 1 GiB.
         cg_steps, cg_rtol: the conjugate-gradient budget per step and its relative
             tolerance (`"cg"` only).
         cg_deflate: also search along the previous step in each step's conjugate
