@@ -8,12 +8,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from ._stencils import EDGE, HANDLE, LAPLACIAN, Stencil, length_scale
+
 
 def _safe_normalise(v: Float[Array, "m 2"]) -> Float[Array, "m 2"]:
     """Rows of `v` divided by their length; zero rows stay zero, with zero gradient."""
-    sq = jnp.sum(v * v, axis=-1, keepdims=True)
-    nonzero = sq > 0
-    return jnp.where(nonzero, v * jax.lax.rsqrt(jnp.where(nonzero, sq, 1.0)), 0.0)
+    return v * length_scale(jnp.sum(v * v, axis=-1, keepdims=True), 1.0)
 
 
 # Beyond this ratio between two positive weights the smaller term is lost to rounding
@@ -158,11 +158,33 @@ class Energy(eqx.Module):
     def num_vertices(self) -> int:
         return self.rest.shape[0]
 
+    def laplacian_stencil(self) -> Stencil:
+        """`L`: each polygon vertex less the mean of its two loop neighbours."""
+        return Stencil.fixed(self.laplacian_index, LAPLACIAN, self.rest.dtype)
+
+    def mvc_stencil(self) -> Stencil:
+        """`M`: each inner vertex less the mean value combination of its 1-ring."""
+        return Stencil(jnp.concatenate([self.mvc_centre[:, None], self.mvc_ring], axis=1),
+                       jnp.concatenate([jnp.ones_like(self.mvc_weight[:, :1]),
+                                        -self.mvc_weight], axis=1))
+
+    def edge_stencil(self) -> Stencil:
+        """`H`: the edge vectors `v_i - v_j` of `E_CG`."""
+        return Stencil.fixed(self.edges, EDGE, self.rest.dtype)
+
+    def handle_stencil(self) -> Stencil:
+        """`C`: each handle's vertex."""
+        return Stencil.fixed(self.handles[:, None], HANDLE, self.rest.dtype)
+
+    def stencils(self) -> tuple[Stencil, Stencil, Stencil, Stencil]:
+        """The rows of `L, M, H, C`, in the energy's order."""
+        return (self.laplacian_stencil(), self.mvc_stencil(), self.edge_stencil(),
+                self.handle_stencil())
+
 
 def laplacian_vectors(energy: Energy, vertices: Float[Array, "n 2"]) -> Float[Array, "p 2"]:
     """`L V`: each polygon vertex minus the mean of its two loop neighbours."""
-    i, prev, nxt = energy.laplacian_index.T
-    return vertices[i] - 0.5 * (vertices[prev] + vertices[nxt])
+    return energy.laplacian_stencil().vectors(vertices)
 
 
 def laplacian_targets(energy: Energy, vertices: Float[Array, "n 2"]) -> Float[Array, "p 2"]:
@@ -176,7 +198,7 @@ def laplacian_targets(energy: Energy, vertices: Float[Array, "n 2"]) -> Float[Ar
 
 def edge_vectors(energy: Energy, vertices: Float[Array, "n 2"]) -> Float[Array, "e 2"]:
     """`H V`: `v_i - v_j` for every edge of `E_CG`."""
-    return vertices[energy.edges[:, 0]] - vertices[energy.edges[:, 1]]
+    return energy.edge_stencil().vectors(vertices)
 
 
 def edge_targets(energy: Energy, vertices: Float[Array, "n 2"]) -> Float[Array, "e 2"]:
@@ -191,8 +213,7 @@ def laplacian_residual(energy: Energy, vertices: Float[Array, "n 2"]) -> Float[A
 
 def mvc_residual(energy: Energy, vertices: Float[Array, "n 2"]) -> Float[Array, "g 2"]:
     """`M V`: each inner vertex minus the mean value combination of its 1-ring."""
-    ring = jnp.einsum("gk,gkd->gd", energy.mvc_weight, vertices[energy.mvc_ring])
-    return vertices[energy.mvc_centre] - ring
+    return energy.mvc_stencil().vectors(vertices)
 
 
 def length_residual(energy: Energy, vertices: Float[Array, "n 2"]) -> Float[Array, "e 2"]:
@@ -204,7 +225,7 @@ def handle_residual(
     energy: Energy, vertices: Float[Array, "n 2"], targets: Float[Array, "h 2"]
 ) -> Float[Array, "h 2"]:
     """`C V - U`: each handle's offset from its target."""
-    return vertices[energy.handles] - targets
+    return energy.handle_stencil().vectors(vertices) - targets
 
 
 def residuals(

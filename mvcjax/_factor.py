@@ -28,6 +28,7 @@ import scipy.sparse.linalg
 from jaxtyping import Array, Complex, Float, Int
 
 from ._energy import Energy
+from ._stencils import Stencil, apply_stencils, apply_stencils_transpose, length_scale
 
 
 def operator_triplets(energy: Energy) -> list[tuple[Array, Array, Array, int]]:
@@ -36,31 +37,7 @@ def operator_triplets(energy: Energy) -> list[tuple[Array, Array, Array, int]]:
     Duplicate `(row, col)` entries add up (the zero-weight padding of the MVC rings
     adds zeros). Pure JAX: works on traced and on concrete energies.
     """
-    dtype = energy.rest.dtype
-    p = energy.laplacian_index.shape[0]
-    lap = (
-        jnp.repeat(jnp.arange(p), 3),
-        energy.laplacian_index.reshape(-1),
-        jnp.tile(jnp.array([1.0, -0.5, -0.5], dtype), p),
-        p,
-    )
-    g, k = energy.mvc_ring.shape
-    mvc = (
-        jnp.concatenate([jnp.arange(g), jnp.repeat(jnp.arange(g), k)]),
-        jnp.concatenate([energy.mvc_centre, energy.mvc_ring.reshape(-1)]),
-        jnp.concatenate([jnp.ones(g, dtype), -energy.mvc_weight.reshape(-1)]),
-        g,
-    )
-    e = energy.edges.shape[0]
-    length = (
-        jnp.repeat(jnp.arange(e), 2),
-        energy.edges.reshape(-1),
-        jnp.tile(jnp.array([1.0, -1.0], dtype), e),
-        e,
-    )
-    h = energy.handles.shape[0]
-    handle = (jnp.arange(h), energy.handles, jnp.ones(h, dtype), h)
-    return [lap, mvc, length, handle]
+    return [(*s.triplets(), s.count) for s in energy.stencils()]
 
 
 def operators(energy: Energy) -> tuple[Float[Array, "rows n"], ...]:
@@ -98,15 +75,9 @@ def _local_rows(
 ) -> tuple[Int[Array, "m 3"], Float[Array, "m 3"], Float[Array, " m"]]:
     """The Laplacian and edge rows merged, so that the local step is one gather: row `r`
     is `y_r = sum_k coef[r, k] V[rows[r, k]]`, its target `length[r] y_r / |y_r|`."""
-    dtype = energy.rest.dtype
-    e = energy.edges
-    p = energy.laplacian_index.shape[0]
-    rows = jnp.concatenate([energy.laplacian_index, jnp.stack([e[:, 0], e[:, 1], e[:, 1]], 1)])
-    coef = jnp.concatenate([
-        jnp.broadcast_to(jnp.array([1.0, -0.5, -0.5], dtype), (p, 3)),
-        jnp.broadcast_to(jnp.array([1.0, -1.0, 0.0], dtype), (e.shape[0], 3)),
-    ])
-    return rows, coef, jnp.concatenate([energy.laplacian_length, energy.edge_length])
+    merged = Stencil.concatenate(energy.laplacian_stencil(), energy.edge_stencil())
+    return merged.rows, merged.coef, jnp.concatenate([energy.laplacian_length,
+                                                      energy.edge_length])
 
 
 def _local_row_weights(energy: Energy) -> Float[Array, " m"]:
@@ -117,29 +88,6 @@ def _local_row_weights(energy: Energy) -> Float[Array, " m"]:
         jnp.broadcast_to(w.laplacian, energy.laplacian_index.shape[:1]),
         jnp.broadcast_to(w.length, energy.edges.shape[:1]),
     ]).astype(energy.rest.dtype)
-
-
-def apply_stencils(rows: Int[Array, "m k"], coef: Float[Array, "m k"],
-                   columns: Float[Array, "2 n"]) -> Complex[Array, " m"]:
-    """`D V`: each row `r` is `sum_k coef[r, k] V[rows[r, k]]`, gathered as complex
-    numbers (one complex scalar per index gathers about three times faster on the CPU
-    than a row of two floats)."""
-    return jnp.sum(coef * jax.lax.complex(columns[0], columns[1])[rows], axis=1)
-
-
-def apply_stencils_transpose(rows: Int[Array, "m k"], coef: Float[Array, "m k"],
-                             u: Complex[Array, " m"], n: int) -> Complex[Array, " n"]:
-    """`D^T u`, the transpose of `apply_stencils`, onto `n` vertices."""
-    return jnp.zeros(n, u.dtype).at[rows.reshape(-1)].add((coef * u[:, None]).reshape(-1))
-
-
-def length_scale(squared_length: Array, length: Array) -> Array:
-    """The factor that turns a vector of squared length `squared_length` to length
-    `length`: `length / |v|`, and 0 for a zero vector (instead of 0/0), with finite
-    gradients there. The local step's one nonlinearity, shared by the fixed-G step, the
-    least-squares residuals and the many-frames iteration."""
-    nonzero = squared_length > 0
-    return jnp.where(nonzero, length * jax.lax.rsqrt(jnp.where(nonzero, squared_length, 1.0)), 0.0)
 
 
 class StepData(eqx.Module):
@@ -197,6 +145,18 @@ class AbstractFactor(eqx.Module):
         """One fixed-G iteration `G b(V)` on the vertices' coordinate rows `V^T`, given
         `handle_part(targets)`."""
 
+    def handle_part_frames(self, targets: Float[Array, "f h 2"]) -> StepData:
+        """`handle_part` for many frames: `constant` gets a last axis of frames
+        `(2, n, f)`; `rest_local` is shared."""
+        constant = jax.vmap(lambda t: self.handle_part(t).constant, out_axes=-1)(targets)
+        return StepData(self.local_targets(self.rest), constant)
+
+    def step_frames(self, columns: Float[Array, "2 n f"], data: StepData) -> Float[Array, "2 n f"]:
+        """`step` for many frames, frames on the last axis (`data` from
+        `handle_part_frames`). Vmapped by default; a factor may do better."""
+        return jax.vmap(lambda v, c: self.step(v, StepData(data.rest_local, c)),
+                        in_axes=-1, out_axes=-1)(columns, data.constant)
+
     @abc.abstractmethod
     def solve_normal(self, rhs: Float[Array, "2 n"]) -> Float[Array, "2 n"]:
         """`N^{-1} rhs` (coordinate rows, as `step`) for the constant normal matrix
@@ -244,6 +204,22 @@ class DenseFactor(AbstractFactor):
     def step(self, columns, handle_part):
         b = self.local_targets(columns) - handle_part.rest_local
         return jnp.stack([jnp.real(b), jnp.imag(b)]) @ self.shape + handle_part.constant
+
+    def step_frames(self, columns, data):
+        # Frames on the last axis, not vmapped: every gather of the local step moves rows
+        # of contiguous frames, and the global step is one product for all of them
+        # (twice as fast as the vmapped step on the CPU, `benchmarks/frames.py`).
+        def local(coordinate):
+            # One gather per stencil column: faster than one gather of all three
+            # columns followed by a contraction.
+            return sum(self.coef[:, k, None] * coordinate[self.rows[:, k]]
+                       for k in range(self.rows.shape[1]))
+
+        x, y = local(columns[0]), local(columns[1])
+        scale = length_scale(x * x + y * y, self.length[:, None])
+        b = jnp.stack([x * scale - jnp.real(data.rest_local)[:, None],
+                       y * scale - jnp.imag(data.rest_local)[:, None]])
+        return jnp.einsum("mn,dmf->dnf", self.shape, b) + data.constant
 
     def solve_normal(self, rhs):
         return rhs @ self.normal_inverse  # N^{-1} is symmetric

@@ -11,50 +11,8 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Float
 
 from ._checks import kind_of
-from ._factor import DenseFactor, length_scale
 from ._rig import Rig
 from ._solvers import AbstractSolver, FixedG
-
-
-def _frames_last(rig: Rig, solver: AbstractSolver) -> bool:
-    """Whether `_fixed_g_frames_last` computes what `rig.solve(t, solver)` does."""
-    return (type(solver) is FixedG and solver.anderson == 0 and not solver.stop_early
-            and solver.adjoint == "unrolled" and type(rig.factor) is DenseFactor)
-
-
-def _fixed_g_frames_last(rig: Rig, targets, solver: FixedG):
-    """`rig.solve(t, solver)` for a chunk of frames at once, frames on the last axis.
-
-    The same iteration as `DenseFactor.step`, written for many frames instead of vmapped:
-    every gather of the local step then moves rows of contiguous frames, and the global
-    step is one matrix product for the whole chunk. Twice as fast as the vmapped solve
-    on the CPU (23 against 46 microseconds a frame on the 6k horse, 15 iterations).
-
-    Returns:
-        `(n, 2, frames)` control vertices, in the rig's frame (as `targets`).
-    """
-    factor = rig.factor
-    start = jnp.moveaxis(jax.vmap(lambda t: rig._local_start(t, "rigid"))(targets), 0, -1)
-    # Relative to rest, as `DenseFactor.step` (see `StepData`).
-    shift = jnp.moveaxis(jax.vmap(factor.target_shift)(targets), 0, -1)
-    constant = factor.rest[..., None] + jnp.einsum("nh,dhf->dnf", factor.handle, shift)
-    constant = jnp.moveaxis(constant, 0, 1)  # (n, 2, frames)
-    rest_local = factor.local_targets(factor.rest)
-
-    def local(coordinate):
-        # One gather per stencil column, of whole rows of frames: faster than a single
-        # gather of all three columns followed by a contraction.
-        return sum(factor.coef[:, k, None] * coordinate[factor.rows[:, k]]
-                   for k in range(factor.rows.shape[1]))
-
-    def step(_, xy):
-        x, y = local(xy[:, 0]), local(xy[:, 1])
-        scale = length_scale(x * x + y * y, factor.length[:, None])
-        b = jnp.stack([x * scale - jnp.real(rest_local)[:, None],
-                       y * scale - jnp.imag(rest_local)[:, None]], axis=1)
-        return jnp.einsum("mn,mdf->ndf", factor.shape, b) + constant
-
-    return jax.lax.fori_loop(0, solver.iterations, step, start)
 
 
 def _pad_frames(targets, multiple: int):
@@ -72,21 +30,16 @@ def _deform_chunked(rig: Rig, targets, solver: AbstractSolver, chunk: int):
     # is ten times slower than the matrix product with all the chunk's frames at once.
     weights = rig.skinning.matrix(rig.control_mesh.vertices.shape[0])
     frames = targets.shape[0]
-    targets = rig.frame.to_local(targets)
-    if _frames_last(rig, solver):
-        chunk = min(chunk, frames)
-        targets = _pad_frames(targets, chunk)
+    chunk = min(chunk, frames)
+    targets = _pad_frames(rig.frame.to_local(targets), chunk)
 
-        def one(t):
-            return jnp.einsum("nc,cdf->fnd", weights, _fixed_g_frames_last(rig, t, solver))
+    def one(t):
+        start = jax.vmap(lambda x: rig._local_start(x, "rigid"))(t)
+        control = solver.solve_frames(rig.energy, rig.factor, t, start)
+        return jnp.einsum("nc,fcd->fnd", weights, control)
 
-        out = jax.lax.map(one, targets.reshape(-1, chunk, *targets.shape[1:]))
-        return rig.frame.to_world(out.reshape(-1, *out.shape[2:])[:frames])
-
-    def solve(t):
-        return solver.solve(rig.energy, rig.factor, t, rig._local_start(t, "rigid"))[0]
-
-    return rig.frame.to_world(jax.lax.map(lambda t: weights @ solve(t), targets, batch_size=chunk))
+    out = jax.lax.map(one, targets.reshape(-1, chunk, *targets.shape[1:]))
+    return rig.frame.to_world(out.reshape(-1, *out.shape[2:])[:frames])
 
 
 @eqx.filter_jit

@@ -25,6 +25,7 @@ from ._skinning import (
     as_skinning,
 )
 from ._solvers import AbstractSolver, FixedG
+from ._stencils import LAPLACIAN
 
 
 class ShapeMesh(eqx.Module):
@@ -655,9 +656,7 @@ def _deform(rig: Rig, targets, solver: AbstractSolver, init):
 def _energy_data(vertices, faces, loops, inner, handles, weights, dtype) -> Energy:
     """The energy's data for a control mesh in the rig's frame (unit diagonal)."""
     lap_index = _laplacian_index(loops)
-    lap_vectors = vertices[lap_index[:, 0]] - 0.5 * (
-        vertices[lap_index[:, 1]] + vertices[lap_index[:, 2]]
-    )
+    lap_vectors = np.einsum("k,pkd->pd", LAPLACIAN, vertices[lap_index])
     stars, star_valid = topology.vertex_stars(faces, len(vertices))
     ring, valid = stars[inner], star_valid[inner]  # an inner vertex's star is its 1-ring
     ring_weight = coords.mean_value_coordinates(vertices[inner], vertices[ring], valid)

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 import mvcjax
-from mvcjax._frames import _frames_last
 
 
 def some_frames(rig, count, seed=0):
@@ -31,8 +30,7 @@ def test_frames_match_single_frames(horse_rig):
                                     mvcjax.FixedG(iterations=30, anderson=3, unroll=0)],
                          ids=["frames_last", "vmapped"])
 def test_each_batch_path_matches_single_frames(horse_rig, solver):
-    # A plain FixedG runs with the frames on the last axis; any other solver is vmapped.
-    assert _frames_last(horse_rig, solver) == (solver.anderson == 0)
+    # A plain FixedG steps all frames together; any other solver is vmapped.
     targets = some_frames(horse_rig, 5, seed=1)
     together = mvcjax.deform_frames(horse_rig, targets, solver, chunk=2)
     for k in range(5):
@@ -101,3 +99,17 @@ def test_frames_sharded_over_four_devices_give_the_same_result():
     out = subprocess.run([sys.executable, "-c", SHARDED], env=env, capture_output=True,
                          text=True, check=True)
     assert float(out.stdout) < 1e-9
+
+
+@pytest.mark.parametrize("factor", ["dense", "sparse"])
+def test_fixed_g_steps_all_frames_as_its_vmap_would(horse, factor):
+    # FixedG batches its frames (frames on the last axis); the default of every solver
+    # vmaps `solve`: both iterate the same map.
+    rig = mvcjax.Rig.build(horse, mvcjax.datasets.horse_handles(), factor=factor)
+    targets = some_frames(rig, 4, seed=3)
+    local = rig.frame.to_local(targets)
+    starts = jax.vmap(lambda t: rig.frame.to_local(rig.start(t)))(targets)
+    solver = mvcjax.FixedG(iterations=20)
+    batched = solver.solve_frames(rig.energy, rig.factor, local, starts)
+    vmapped = mvcjax.AbstractSolver.solve_frames(solver, rig.energy, rig.factor, local, starts)
+    np.testing.assert_allclose(batched, vmapped, atol=1e-9)

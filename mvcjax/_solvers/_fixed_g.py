@@ -234,6 +234,15 @@ class FixedG(AbstractSolver):
         )
         return vertices, info
 
+    def solve_frames(self, energy, factor, targets, init):
+        if self.anderson or self.stop_early or self.adjoint != "unrolled":
+            return super().solve_frames(energy, factor, targets, init)
+        data = factor.handle_part_frames(targets)
+        columns = jnp.transpose(init, (2, 1, 0))  # frames last: (2, n, f)
+        columns = jax.lax.fori_loop(0, self.iterations,
+                                    lambda _, v: factor.step_frames(v, data), columns)
+        return jnp.transpose(columns, (2, 1, 0))
+
     def fixed_steps(self, steps):
         return dataclasses.replace(self, iterations=check_steps(self, steps), stop_early=False,
                                    adjoint="unrolled")

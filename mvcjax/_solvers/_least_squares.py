@@ -10,13 +10,8 @@ import lineax as lx
 from jaxtyping import Array, Complex, Float, Int
 
 from .._energy import NORMAL_WEIGHT, Energy, total_energy
-from .._factor import (
-    _local_row_weights,
-    _local_rows,
-    apply_stencils,
-    apply_stencils_transpose,
-    length_scale,
-)
+from .._factor import _local_row_weights, _local_rows
+from .._stencils import Stencil, apply_stencils, apply_stencils_transpose, length_scale
 from ._base import SolveInfo, honest
 
 _JACOBIAN_LIMIT_BYTES = 2**30
@@ -85,8 +80,8 @@ class ScaledProblem(eqx.Module):
         rows, coef, length = _local_rows(energy)
         h = energy.handles
         dtype = length.dtype
-        self.rows = jnp.concatenate([rows, jnp.stack([h, h, h], axis=1)])
-        self.coef = jnp.concatenate([coef, jnp.zeros((h.shape[0], 3), dtype).at[:, 0].set(1)])
+        merged = Stencil.concatenate(Stencil(rows, coef), energy.handle_stencil())
+        self.rows, self.coef = merged.rows, merged.coef
         self.length = jnp.concatenate([length / energy.scale, jnp.zeros(h.shape, dtype)])
         u = self.scaled(targets).astype(dtype)
         self.offset = jnp.concatenate([jnp.zeros(rows.shape[:1], dtype),
@@ -96,9 +91,9 @@ class ScaledProblem(eqx.Module):
         w = energy.weights.normalised()
         self.row_weight = jnp.sqrt(jnp.concatenate([
             _local_row_weights(energy), jnp.broadcast_to(w.handle, h.shape).astype(dtype)]))
-        self.mvc_rows = jnp.concatenate([energy.mvc_centre[:, None], energy.mvc_ring], axis=1)
-        self.mvc_coef = jnp.sqrt(w.mvc).astype(dtype) * jnp.concatenate(
-            [jnp.ones_like(energy.mvc_weight[:, :1]), -energy.mvc_weight], axis=1)
+        mvc = energy.mvc_stencil()
+        self.mvc_rows = mvc.rows
+        self.mvc_coef = jnp.sqrt(w.mvc).astype(dtype) * mvc.coef
 
     def scaled(self, vertices: Float[Array, "n 2"]) -> Float[Array, "2 n"]:
         return ((vertices - self.energy.rest.mean(axis=0)) / self.energy.scale).T
