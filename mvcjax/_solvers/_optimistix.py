@@ -175,7 +175,8 @@ def _converged(rtol, atol, norm, y, y_diff, f, f_diff):
 
 
 class _StructuredGaussNewton(optx.AbstractLeastSquaresSolver):
-    """`optimistix.AbstractGaussNewton`'s step with the residuals and their Jacobian in
+    """`optimistix.AbstractGaussNewton`'s step (as of optimistix 0.1, which
+    `pyproject.toml` pins for that reason) with the residuals and their Jacobian in
     closed form (`ScaledProblem.linearise`, `StructuredJacobian`) instead of a
     `jax.linearize` of `fn` each step: the descent, the search and the Cauchy test are
     the same, and run in the same order, but the point is gathered once per step and
