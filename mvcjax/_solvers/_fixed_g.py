@@ -238,10 +238,10 @@ class FixedG(AbstractSolver):
         if self.anderson or self.stop_early or self.adjoint != "unrolled":
             return super().solve_frames(energy, factor, targets, init)
         data = factor.handle_part_frames(targets)
-        columns = jnp.transpose(init, (2, 1, 0))  # frames last: (2, n, f)
-        columns = jax.lax.fori_loop(0, self.iterations,
-                                    lambda _, v: factor.step_frames(v, data), columns)
-        return jnp.transpose(columns, (2, 1, 0))
+        vertices = jnp.moveaxis(init, 0, -1)  # frames last: (n, 2, f)
+        vertices = jax.lax.fori_loop(0, self.iterations,
+                                     lambda _, v: factor.step_frames(v, data), vertices)
+        return jnp.moveaxis(vertices, -1, 0)
 
     def fixed_steps(self, steps):
         return dataclasses.replace(self, iterations=check_steps(self, steps), stop_early=False,
