@@ -6,7 +6,7 @@ import numpy as np
 from jaxtyping import Bool, Float, Int
 
 
-def _cross(a, b):
+def cross(a, b):
     """z-component of the cross product of 2D vectors (numpy's 2D cross is deprecated)."""
     return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
@@ -88,9 +88,9 @@ def barycentric_coordinates(
 ) -> Float[np.ndarray, "n 3"]:
     """Barycentric coordinates of each point in its own triangle."""
     a, b, c = triangles[:, 0], triangles[:, 1], triangles[:, 2]
-    area = _cross(b - a, c - a)
-    wa = _cross(b - points, c - points) / area
-    wb = _cross(c - points, a - points) / area
+    area = cross(b - a, c - a)
+    wa = cross(b - points, c - points) / area
+    wb = cross(c - points, a - points) / area
     return np.stack([wa, wb, 1.0 - wa - wb], axis=1)
 
 
@@ -107,13 +107,13 @@ def locate_points(
     """
     tri = vertices[faces]
     a, ab, ac = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-    inv_area = 1.0 / _cross(ab, ac)
+    inv_area = 1.0 / cross(ab, ac)
     face = np.empty(len(points), np.int64)
     depth = np.empty(len(points))
     for start in range(0, len(points), chunk):
         p = points[start : start + chunk, None, :] - a[None]
-        wb = _cross(p, ac[None]) * inv_area
-        wc = _cross(ab[None], p) * inv_area
+        wb = cross(p, ac[None]) * inv_area
+        wc = cross(ab[None], p) * inv_area
         low = np.minimum(np.minimum(wb, wc), 1.0 - wb - wc)
         best = np.argmax(low, axis=1)
         face[start : start + chunk] = best

@@ -8,7 +8,7 @@ import triangle
 from jaxtyping import Float, Int
 from scipy.spatial import Voronoi, cKDTree
 
-from ._coordinates import _cross
+from ._coordinates import cross
 from ._shape import Shape
 
 
@@ -121,7 +121,7 @@ def triangulate_shape(
 
 def _counter_clockwise(verts, faces):
     a, b, c = (verts[faces[:, i]] for i in range(3))
-    signed = _cross(b - a, c - a)
+    signed = cross(b - a, c - a)
     faces = faces.copy()
     faces[signed < 0] = faces[signed < 0][:, [0, 2, 1]]
     return faces

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from jaxtyping import Float, Int
 
-from ._coordinates import _cross
+from ._coordinates import cross
 from ._topology import face_pairs
 
 
@@ -59,6 +59,6 @@ def flipped_triangles(
 
     def signed(v):
         v = np.asarray(v, np.float64)
-        return _cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
+        return cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
 
     return int(np.sum(np.sign(signed(rest)) != np.sign(signed(deformed))))

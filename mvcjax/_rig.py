@@ -227,7 +227,7 @@ def _check_rig(shape_vertices, control_vertices, control_faces, skin_index, skin
     """What every rig must satisfy, checked once at build time: a failure is a bug, and an
     error now instead of a NaN later."""
     a, b, c = (control_vertices[control_faces[:, k]] for k in range(3))
-    area = coords._cross(b - a, c - a)
+    area = coords.cross(b - a, c - a)
     problems = []
     flat = area <= 1e-14 * np.abs(area).max(initial=0.0)
     if flat.any():

@@ -63,10 +63,6 @@ class Stencil(eqx.Module):
         m, k = self.rows.shape
         return jnp.repeat(jnp.arange(m), k), self.rows.reshape(-1), self.coef.reshape(-1)
 
-    def apply(self, columns: Float[Array, "2 n"]) -> Complex[Array, " m"]:
-        """`D V` on coordinate rows `(2, n)`, as complex numbers."""
-        return apply_stencils(self.rows, self.coef, columns)
-
 
 def apply_stencils(rows: Int[Array, "m k"], coef: Float[Array, "m k"],
                    columns: Float[Array, "2 n"]) -> Complex[Array, " m"]:

@@ -22,11 +22,12 @@ def _half_edges(faces) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def _find(keys: np.ndarray, queries: np.ndarray) -> np.ndarray:
     """Where each query sits in `keys` (unique integers), -1 where it is absent."""
+    if len(keys) == 0:
+        return np.full(len(queries), -1)
     order = np.argsort(keys, kind="stable")
     sorted_keys = keys[order]
-    at = np.clip(np.searchsorted(sorted_keys, queries), 0, max(len(keys) - 1, 0))
-    found = (sorted_keys[at] == queries) if len(keys) else np.zeros(len(queries), bool)
-    return np.where(found, order[at] if len(keys) else -1, -1)
+    at = np.clip(np.searchsorted(sorted_keys, queries), 0, len(keys) - 1)
+    return np.where(sorted_keys[at] == queries, order[at], -1)
 
 
 def _twins(faces) -> np.ndarray:
@@ -104,7 +105,7 @@ def boundary_loops(faces: Int[np.ndarray, "f 3"]) -> list[Int[np.ndarray, " k"]]
     if len(boundary) == 0:
         return []
     if len(np.unique(boundary[:, 0])) != len(boundary):
-        vertex = boundary[np.argmax(np.bincount(boundary[:, 0])), 0] if len(boundary) else -1
+        vertex = int(np.bincount(boundary[:, 0]).argmax())
         raise ValueError(
             f"the mesh's boundary passes twice through vertex {vertex} (two boundary loops "
             "touch there, or two fans of triangles meet at a point); separate them by at "
