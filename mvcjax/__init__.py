@@ -13,6 +13,7 @@ from ._energy import (
     total_energy as total_energy,
 )
 from ._frames import deform_frames as deform_frames
+from ._handles import Bone as Bone, Handles as Handles
 from ._metrics import (
     difference as difference,
     flipped_triangles as flipped_triangles,

@@ -137,7 +137,8 @@ class Energy(eqx.Module):
         mvc_weight: `(g, k)` its mean value coordinates at rest (0 on padding).
         edges: `(e, 2)` the edges `E_CG` (every edge but the polygon's).
         edge_length: `(e,)` their rest lengths.
-        handles: `(h,)` control-vertex index of each handle.
+        handles: `(h,)` the control vertex of each row of `C` (each point a handle pins;
+            bones sharing a joint pin its vertex twice).
         weights: the term weights.
         scale: rest bounding-box diagonal, the unit of tolerances.
     """

@@ -31,7 +31,7 @@ def _deform_chunked(rig: Rig, targets, solver: AbstractSolver, chunk: int):
     weights = rig.skinning.matrix(rig.control_mesh.vertices.shape[0])
     frames = targets.shape[0]
     chunk = min(chunk, frames)
-    targets = _pad_frames(rig.frame.to_local(targets), chunk)
+    targets = _pad_frames(jax.vmap(rig._pinned)(targets), chunk)
 
     def one(t):
         start = jax.vmap(lambda x: rig._local_start(x, "rigid"))(t)
@@ -94,7 +94,7 @@ def deform_frames(
     refused by index. Under `jax.jit` they cannot be (the values are not known yet), and
     such a frame comes back non-finite while the others are unaffected.
     """
-    h = rig.energy.handles.shape[0]
+    h = rig.handles.count
     if not isinstance(targets, jax.core.Tracer):
         host = np.asarray(targets)
         if host.dtype.kind not in "iuf":

@@ -10,13 +10,20 @@ import jax.numpy as jnp
 import numpy as np
 import shapely
 from jaxtyping import Array, Float, Int
-from scipy.spatial import cKDTree
 
 from . import _coordinates as coords, _meshing as meshing, _topology as topology
 from ._checks import as_points, kind_of
 from ._energy import Energy, Weights, check_weights, rigid_start, total_energy
 from ._factor import AbstractFactor, make_factor
 from ._frame import Frame, bounding_frame, check_representable, frame_array
+from ._handles import (
+    Handles,
+    bone_samples,
+    bone_samples_on,
+    check_handles,
+    make_handles,
+    pin,
+)
 from ._shape import Shape
 from ._skinning import (
     AbstractSkinning,
@@ -34,12 +41,13 @@ class ShapeMesh(eqx.Module):
     Attributes:
         vertices: `(n, 2)` rest vertices.
         faces: `(f, 3)` counter-clockwise triangles.
-        handles: `(h,)` the vertex at each handle.
+        handles: `(r,)` the vertex each handle pins, one per row of `Handles` (a
+            point handle pins one, a bone several along its segment).
     """
 
     vertices: Float[Array, "n 2"]
     faces: Int[Array, "f 3"]
-    handles: Int[Array, " h"]
+    handles: Int[Array, " r"]
 
 
 class ControlMesh(eqx.Module):
@@ -50,14 +58,14 @@ class ControlMesh(eqx.Module):
         faces: `(f, 3)` counter-clockwise triangles.
         outer: `(p,)` the vertices of the enclosing polygon `V_CP`, loop after loop.
         inner: `(g,)` the inner vertices `V_CG`.
-        handles: `(h,)` the vertex at each handle.
+        handles: `(r,)` the vertex each handle pins, as `ShapeMesh.handles`.
     """
 
     vertices: Float[Array, "c 2"]
     faces: Int[Array, "f 3"]
     outer: Int[Array, " p"]
     inner: Int[Array, " g"]
-    handles: Int[Array, " h"]
+    handles: Int[Array, " r"]
 
 
 def _array(a, dtype) -> Array:
@@ -91,30 +99,6 @@ def _check_dtype(dtype):
             "never changes it), or use dtype=jnp.float32."
         )
     return jnp.dtype(dt)
-
-
-def _check_handles(shape: Shape, handles) -> np.ndarray:
-    handles = as_points(handles, "handles", "h")
-    tol = 1e-6 * shape.diagonal
-    poly = shape.polygon
-    dist = shapely.distance(shapely.points(handles), poly)
-    for i in np.flatnonzero(dist > tol):
-        near = shape.closest_point(handles[i])
-        raise ValueError(
-            f"handles[{i}] = {handles[i].tolist()} lies outside the shape (distance "
-            f"{dist[i]:.4g}); put it on or inside the shape, e.g. at its closest point "
-            f"{near.round(6).tolist()} (Shape.closest_point)."
-        )
-    if len(handles) > 1:
-        tree = cKDTree(handles)
-        pairs = tree.query_pairs(tol, output_type="ndarray")
-        if len(pairs):
-            i, j = sorted(pairs[0].tolist())
-            raise ValueError(
-                f"handles[{i}] and handles[{j}] are at the same spot {handles[i].tolist()}; "
-                "remove one of them."
-            )
-    return handles
 
 
 def _length(value, name: str) -> float | None:
@@ -189,7 +173,8 @@ def _loops_and_inner(vertices, faces):
     return loops, np.flatnonzero(~on_loop)
 
 
-def _control_from_arrays(control, handles, tol):
+def _control_arrays(control):
+    """The user's control mesh, `(vertices, faces)`, checked."""
     if not (isinstance(control, (tuple, list)) and len(control) == 2):
         raise TypeError(
             f"control must be None, 'shape' or a (vertices, faces) pair, got {control!r}."
@@ -210,17 +195,21 @@ def _control_from_arrays(control, handles, tol):
             f"control faces index vertices {faces.min()} to {faces.max()}, but there are "
             f"{len(vertices)} control vertices; indices run from 0 to {len(vertices) - 1}."
         )
-    faces = meshing._counter_clockwise(vertices, faces)
-    loops, inner = _loops_and_inner(vertices, faces)
-    dist = np.linalg.norm(vertices[None] - handles[:, None], axis=2)
+    return vertices, meshing._counter_clockwise(vertices, faces)
+
+
+def _pinned_vertices(vertices, pinned, tol, to_world):
+    """The control vertex at every pinned point of a control mesh of the user's."""
+    dist = np.linalg.norm(vertices[None] - pinned[:, None], axis=2)
     idx = np.argmin(dist, axis=1)
-    bad = np.flatnonzero(dist[np.arange(len(handles)), idx] > tol)
+    bad = np.flatnonzero(dist[np.arange(len(pinned)), idx] > tol)
     if len(bad):
         raise ValueError(
-            f"handles[{bad[0]}] = {handles[bad[0]].tolist()} is not a vertex of the given "
-            "control mesh; every handle must be a control vertex: add it to the mesh."
+            f"The handle point {to_world(pinned[bad[0]]).tolist()} is not a vertex of the "
+            "given control mesh; every point handle and both ends of every bone must be "
+            "control vertices: add it to the mesh."
         )
-    return vertices, faces, loops, inner, idx
+    return idx
 
 
 def _check_rig(shape_vertices, control_vertices, control_faces, skin_index, skin_weight):
@@ -266,6 +255,7 @@ class Rig(eqx.Module):
     Attributes:
         shape_mesh: the dense mesh that is drawn.
         control_mesh: the small mesh that is solved.
+        handles: how the targets pin the control mesh (in the rig's frame).
         skinning: the weights carrying the shape mesh (`V_S = W V_C`).
         energy: the data and weights of the energy (6), in the rig's frame.
         factor: the precomputed global step of the fixed-G iteration (the paper's dense
@@ -275,6 +265,7 @@ class Rig(eqx.Module):
 
     shape_mesh: ShapeMesh
     control_mesh: ControlMesh
+    handles: Handles
     skinning: Skinning
     energy: Energy
     factor: AbstractFactor
@@ -303,7 +294,10 @@ class Rig(eqx.Module):
 
         Args:
             shape: the shape to deform.
-            handles: `(h, 2)` handle points, on or inside the shape.
+            handles: `(h, 2)` handle points, on or inside the shape; or a list of
+                handles, each an `(x, y)` point or an `mvcjax.Bone(start, end)` (a
+                segment of the shape that follows a dragged segment). The targets then
+                have a row per point and two per bone (its start, then its end).
             shape_spacing: edge length of the shape mesh (default: `sqrt(area) / 40`,
                 about 3k vertices on a compact shape, or half the shape's thickness,
                 twice its area over its perimeter, if that is smaller).
@@ -341,7 +335,7 @@ class Rig(eqx.Module):
                 "Shape.from_polygon(outer, holes) or Shape.from_image(mask)."
             )
         dtype = _check_dtype(dtype)
-        handles = _check_handles(shape, handles)
+        points, bones, _ = check_handles(shape, handles)
         weights = Weights() if weights is None else check_weights(weights)
         skinning = as_skinning(skinning)
         if isinstance(max_triangles, bool) or not isinstance(max_triangles, (int, np.integer)) \
@@ -355,25 +349,39 @@ class Rig(eqx.Module):
 
         centre, scale = bounding_frame(shape.outer)
         check_representable(centre, scale, dtype)
+        frame = (centre, scale)
         local = Shape.from_polygon((shape.outer - centre) / scale,
                                    [(h - centre) / scale for h in shape.holes])
-        local_handles = (handles - centre) / scale
+        local_points = (points - centre) / scale
         shape_spacing, control_spacing, margin = _spacings(
             local, scale, shape_spacing, control_spacing, margin
         )
         _check_mesh_size(local, shape_spacing, scale, max_triangles)
+        tol = 1e-6  # of the diagonal, 1 in the rig's frame
+        if isinstance(control, (tuple, list)):
+            given_vertices, given_faces = _control_arrays(control)
+            given_vertices = (given_vertices - centre) / scale
+
+            def samples(a, b):
+                return np.union1d([0.0, 1.0], bone_samples_on(a, b, given_vertices, tol))
+        else:
+            def samples(a, b):
+                return bone_samples(a, b, control_spacing)
+        pinned, row_pin, rows = pin(local_points, bones, samples, tol)
+        handle_rows = make_handles(local_points, bones, rows, dtype)
+
         local = meshing.thin_outline(local, shape_spacing)
-        shape_vertices, shape_faces, shape_handles = meshing.triangulate_shape(
-            local, shape_spacing, local_handles
+        shape_vertices, shape_faces, shape_pinned = meshing.triangulate_shape(
+            local, shape_spacing, pinned
         )
-        frame = (centre, scale)
+        shape_handles = shape_pinned[row_pin]
         if isinstance(control, str):
-            return cls._full(shape_vertices, shape_faces, shape_handles, weights, factor, dtype,
-                             frame)
+            return cls._full(shape_vertices, shape_faces, shape_handles, handle_rows, weights,
+                             factor, dtype, frame)
         if control is None:
             loops = meshing.control_polygon(local, margin, control_spacing)
             inner_shape = meshing.inner_control_vertices(
-                shape_vertices, shape_handles, loops, control_spacing
+                shape_vertices, shape_pinned, loops, control_spacing
             )
             control_vertices, control_faces = meshing.triangulate_control(
                 loops, shape_vertices[inner_shape]
@@ -381,12 +389,12 @@ class Rig(eqx.Module):
             offsets = np.cumsum([0, *(len(lp) for lp in loops)])
             loops = [np.arange(a, b) for a, b in itertools.pairwise(offsets)]
             inner = np.arange(offsets[-1], len(control_vertices))
-            control_handles = inner[: len(handles)]
+            control_pinned = inner[: len(pinned)]
         else:
-            control_vertices, control_faces, loops, inner, control_handles = _control_from_arrays(
-                control, handles, 1e-6 * shape.diagonal
-            )
-            control_vertices = (control_vertices - centre) / scale
+            control_vertices, control_faces = given_vertices, given_faces
+            loops, inner = _loops_and_inner(control_vertices, control_faces)
+            control_pinned = _pinned_vertices(control_vertices, pinned, tol,
+                                              lambda p: p * scale + centre)
 
         skin_index, skin_weight = skinning.weights_at(
             shape_vertices, control_vertices, control_faces, what="shape vertices"
@@ -394,39 +402,41 @@ class Rig(eqx.Module):
         _check_rig(shape_vertices, control_vertices, control_faces, skin_index, skin_weight)
         return cls._assemble(
             (shape_vertices, shape_faces, shape_handles),
-            (control_vertices, control_faces, loops, inner, control_handles),
-            (skin_index, skin_weight, skinning), weights, factor, dtype, frame,
+            (control_vertices, control_faces, loops, inner, control_pinned[row_pin]),
+            (skin_index, skin_weight, skinning), handle_rows, weights, factor, dtype, frame,
         )
 
     @classmethod
-    def _full(cls, vertices, faces, handles, weights, factor, dtype, frame) -> Rig:
+    def _full(cls, vertices, faces, pinned, handles, weights, factor, dtype, frame) -> Rig:
         """The shape mesh as its own control mesh, carried by the identity."""
         loops, inner = _loops_and_inner(vertices, faces)
         identity = (np.arange(len(vertices))[:, None], np.ones((len(vertices), 1)),
                     BarycentricSkinning())
         return cls._assemble(
-            (vertices, faces, handles),
-            (vertices, faces, loops, inner, handles),
-            identity, weights, factor, dtype, frame,
+            (vertices, faces, pinned),
+            (vertices, faces, loops, inner, pinned),
+            identity, handles, weights, factor, dtype, frame,
         )
 
     @classmethod
-    def _assemble(cls, shape_mesh, control_mesh, skinning, weights, factor, dtype, frame):
+    def _assemble(cls, shape_mesh, control_mesh, skinning, handles, weights, factor, dtype,
+                  frame):
         """The rig from its parts, all in the rig's frame (`frame = (centre, scale)` maps
         them back to the user's coordinates)."""
-        shape_vertices, shape_faces, shape_handles = shape_mesh
-        control_vertices, control_faces, loops, inner, control_handles = control_mesh
+        shape_vertices, shape_faces, shape_pinned = shape_mesh
+        control_vertices, control_faces, loops, inner, control_pinned = control_mesh
         centre, scale = frame
         energy = _energy_data(
-            control_vertices, control_faces, loops, inner, control_handles, weights, dtype,
+            control_vertices, control_faces, loops, inner, control_pinned, weights, dtype,
         )
         world = lambda v: _array(v * scale + centre, dtype)  # noqa: E731
         return cls(
-            shape_mesh=ShapeMesh(world(shape_vertices), _ints(shape_faces), _ints(shape_handles)),
+            shape_mesh=ShapeMesh(world(shape_vertices), _ints(shape_faces), _ints(shape_pinned)),
             control_mesh=ControlMesh(
                 world(control_vertices), _ints(control_faces),
-                _ints(np.concatenate(loops)), _ints(inner), _ints(control_handles),
+                _ints(np.concatenate(loops)), _ints(inner), _ints(control_pinned),
             ),
+            handles=handles,
             skinning=Skinning(_ints(skinning[0]), _array(skinning[1], dtype), skinning[2]),
             energy=energy,
             factor=make_factor(energy, factor),
@@ -437,8 +447,23 @@ class Rig(eqx.Module):
 
     @property
     def handle_positions(self) -> Float[Array, "h 2"]:
-        """The handles' rest positions: targets equal to these give back the rest shape."""
-        return self.control_mesh.vertices[self.control_mesh.handles]
+        """The targets at rest (a row per point handle, two per bone): targets equal to
+        these give back the rest shape."""
+        return self.frame.to_world(self.handles.rest)
+
+    @property
+    def bones(self) -> Float[Array, "b 2 2"]:
+        """Every bone's rest `(start, end)`."""
+        return self.handle_positions[self.handles.bones]
+
+    def pinned_targets(self, targets: Float[Array, "h 2"]) -> Float[Array, "r 2"]:
+        """Where each pinned control vertex (`control_mesh.handles`) goes for these
+        targets, in the user's coordinates: the rows of `C` the solvers see."""
+        return self.frame.to_world(self._pinned(self._check_targets(targets)))
+
+    def _pinned(self, targets: Float[Array, "h 2"]) -> Float[Array, "r 2"]:
+        """Checked targets in the user's coordinates -> pinned rows in the rig's frame."""
+        return self.handles.pinned_targets(self.frame.to_local(targets))
 
     def with_weights(self, weights: Weights) -> Rig:
         """The same rig with other term weights.
@@ -470,11 +495,11 @@ class Rig(eqx.Module):
     def start(self, targets: Float[Array, "h 2"], init="rigid") -> Float[Array, "c 2"]:
         """Starting control vertices: `"rigid"` (the rest mesh moved rigidly to fit the
         targets), `"rest"` (the paper's), or an explicit `(c, 2)` array."""
-        targets = self._check_targets(targets)
-        return self.frame.to_world(self._local_start(self.frame.to_local(targets), init))
+        return self.frame.to_world(self._local_start(self._pinned(self._check_targets(targets)),
+                                                     init))
 
     def _check_targets(self, targets) -> Float[Array, "h 2"]:
-        h = self.energy.handles.shape[0]
+        h = self.handles.count
         if not isinstance(targets, jax.core.Tracer):
             # Concrete targets (also when closed over inside jit) are checked on the host.
             try:
@@ -554,7 +579,7 @@ class Rig(eqx.Module):
             raise TypeError(f"steps must be an int, got {steps!r}.")
         if steps < 1:
             raise ValueError(f"steps must be at least 1, got {steps}.")
-        targets = self.frame.to_local(self._check_targets(targets))
+        targets = self._pinned(self._check_targets(targets))
         history = solver.history(self.energy, self.factor, targets,
                                  self._local_start(targets, init), steps)
         return history * self.frame.scale**2
@@ -563,9 +588,8 @@ class Rig(eqx.Module):
                   targets: Float[Array, "h 2"]) -> Float[Array, ""]:
         """The energy (6) of control vertices for these targets, in the user's units
         (what `SolveInfo.energy` reports)."""
-        local = self.frame.to_local
-        return total_energy(self.energy, local(control_vertices),
-                            local(self._check_targets(targets))) * self.frame.scale**2
+        return total_energy(self.energy, self.frame.to_local(control_vertices),
+                            self._pinned(self._check_targets(targets))) * self.frame.scale**2
 
     def skin(self, control_vertices: Float[Array, "c 2"]) -> Float[Array, "n 2"]:
         """Shape-mesh vertices carried by the control vertices (`V_S = W V_C`)."""
@@ -601,19 +625,24 @@ class Rig(eqx.Module):
         return (shape, info) if return_info else shape
 
     def __repr__(self) -> str:
+        cm = self.control_mesh
+        bones = self.handles.bones.shape[0]
+        handles = self.handles.count - bones  # a bone takes two rows of targets
         return (
             f"Rig(shape mesh: {self.shape_mesh.vertices.shape[0]} vertices, "
             f"{self.shape_mesh.faces.shape[0]} faces; control mesh: "
-            f"{self.control_mesh.vertices.shape[0]} vertices ({self.control_mesh.outer.shape[0]} "
-            f"polygon, {self.control_mesh.inner.shape[0]} inner), "
-            f"{self.control_mesh.handles.shape[0]} handles)"
+            f"{cm.vertices.shape[0]} vertices ({cm.outer.shape[0]} polygon, "
+            f"{cm.inner.shape[0]} inner), {handles} handles"
+            + (f" ({bones} bones; {self.handles.count} targets, {cm.handles.shape[0]} pinned "
+               "vertices)" if bones else "")
+            + ")"
         )
 
 
 def _solve_local(rig: Rig, targets, solver: AbstractSolver, init):
     """The solve in the rig's frame: local control vertices, and the info with the energy
     in the user's units."""
-    local_targets = rig.frame.to_local(targets)
+    local_targets = rig._pinned(targets)
     vertices, info = solver.solve(rig.energy, rig.factor, local_targets,
                                   rig._local_start(local_targets, init))
     # In the user's units the energy can overflow where the rig's was finite: then it did

@@ -24,6 +24,21 @@ def plot_mesh(vertices, faces, ax=None, *, color="0.55", linewidth=0.3, **kwargs
     return ax
 
 
+def _draw_handles(ax, rig, pinned, targets):
+    """Pinned vertices as red dots, bones as red segments through them, targets as
+    crosses (a bone's two targets joined by a dashed line)."""
+    ax.plot(pinned[:, 0], pinned[:, 1], "o", color="tab:red", markersize=5, label="handles")
+    first = np.asarray(rig.handles.first)
+    for start, _ in np.asarray(rig.handles.bones):
+        on = pinned[first == start]
+        ax.plot(on[:, 0], on[:, 1], "-", color="tab:red", linewidth=3, solid_capstyle="round")
+    if targets is not None:
+        t = np.asarray(targets)
+        ax.plot(t[:, 0], t[:, 1], "x", color="k", markersize=7, label="targets")
+        for bone in np.asarray(rig.handles.bones):
+            ax.plot(t[bone, 0], t[bone, 1], "--", color="k", linewidth=0.8)
+
+
 def plot_rig(rig, ax=None, *, control_vertices=None, shape_vertices=None, targets=None):
     """The shape mesh under the control mesh, polygon `V_CP` and handles marked.
 
@@ -37,11 +52,7 @@ def plot_rig(rig, ax=None, *, control_vertices=None, shape_vertices=None, target
     plot_mesh(cv, rig.control_mesh.faces, ax, color="tab:blue", linewidth=0.7)
     outer = np.asarray(rig.control_mesh.outer)
     ax.plot(cv[outer, 0], cv[outer, 1], ".", color="tab:blue", markersize=3)
-    handles = np.asarray(rig.control_mesh.handles)
-    ax.plot(cv[handles, 0], cv[handles, 1], "o", color="tab:red", markersize=5, label="handles")
-    if targets is not None:
-        t = np.asarray(targets)
-        ax.plot(t[:, 0], t[:, 1], "x", color="k", markersize=7, label="targets")
+    _draw_handles(ax, rig, cv[np.asarray(rig.control_mesh.handles)], targets)
     return ax
 
 
@@ -52,11 +63,7 @@ def plot_deformation(rig, shape_vertices, targets=None, ax=None, *, rest=True):
         plot_mesh(rig.shape_mesh.vertices, rig.shape_mesh.faces, ax, color="0.85", linewidth=0.25)
     plot_mesh(shape_vertices, rig.shape_mesh.faces, ax, color="tab:green", linewidth=0.3)
     sv = np.asarray(shape_vertices)
-    handles = np.asarray(rig.shape_mesh.handles)
-    ax.plot(sv[handles, 0], sv[handles, 1], "o", color="tab:red", markersize=5)
-    if targets is not None:
-        t = np.asarray(targets)
-        ax.plot(t[:, 0], t[:, 1], "x", color="k", markersize=7)
+    _draw_handles(ax, rig, sv[np.asarray(rig.shape_mesh.handles)], targets)
     return ax
 
 

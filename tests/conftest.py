@@ -62,7 +62,7 @@ def scipy_minimum(rig, targets, start, method="lm"):
     """The energy's minimum near `start` by scipy.optimize.least_squares (an independent
     reference): control vertices `(c, 2)` and the energy there, in the user's units (the
     rig's energy is in its own frame)."""
-    local_targets = rig.frame.to_local(targets)
+    local_targets = rig.frame.to_local(rig.pinned_targets(targets))
     fun = jax.jit(lambda x: mvcjax.residuals(rig.energy, x.reshape(-1, 2), local_targets))
     jac = jax.jit(jax.jacfwd(fun))
     result = scipy.optimize.least_squares(
