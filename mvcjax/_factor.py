@@ -18,10 +18,12 @@ from __future__ import annotations
 import abc
 import itertools
 import weakref
+from typing import Any
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import lineax as lx
 import numpy as np
 import scipy.sparse
 import scipy.sparse.linalg
@@ -157,6 +159,21 @@ class AbstractFactor(eqx.Module):
         return jax.vmap(lambda v, c: self.step(v.T, StepData(data.rest_local, c.T)).T,
                         in_axes=-1, out_axes=-1)(vertices, data.constant)
 
+    def _columns(self) -> jax.ShapeDtypeStruct:
+        return jax.ShapeDtypeStruct(self.rest.shape, self.rest.dtype)
+
+    def normal_operator(self) -> lx.FunctionLinearOperator:
+        """`N = A^T W A` as a lineax operator on coordinate rows `(2, n)`, tagged
+        symmetric positive semidefinite (it is definite: the handles pin it)."""
+        return lx.FunctionLinearOperator(self.multiply_normal, self._columns(), _SPD)
+
+    def normal_inverse_operator(self) -> lx.FunctionLinearOperator:
+        """`N^{-1}`, applied by the factor, as a lineax operator: the preconditioner of
+        any conjugate-gradient solve with a matrix near `N` (the least-squares solvers'
+        Gauss-Newton matrix, the implicit gradients' Hessian; lineax's `lx.CG` takes it
+        as `options={"preconditioner": ...}`)."""
+        return lx.FunctionLinearOperator(self.solve_normal, self._columns(), _SPD)
+
     @abc.abstractmethod
     def solve_normal(self, rhs: Float[Array, "2 n"]) -> Float[Array, "2 n"]:
         """`N^{-1} rhs` (coordinate rows, as `step`) for the constant normal matrix
@@ -171,6 +188,45 @@ class AbstractFactor(eqx.Module):
     @abc.abstractmethod
     def rebuild(self, energy: Energy) -> AbstractFactor:
         """The same kind of factor for the energy's (new) weights."""
+
+
+# The normal matrix is symmetric positive definite; lineax asks for the tags.
+_SPD = frozenset({lx.symmetric_tag, lx.positive_semidefinite_tag})
+
+
+class FactorSolver(lx.AbstractLinearSolver):
+    """A factor as a lineax linear solver, for its own `normal_operator`:
+    `lx.linear_solve(factor.normal_operator(), b, FactorSolver(factor))` solves with `N`
+    by the factor (the dense inverse, or the sparse LU), differentiably.
+
+    Attributes:
+        factor: the factor whose normal matrix is solved with.
+    """
+
+    factor: AbstractFactor
+
+    def init(self, operator: lx.AbstractLinearOperator, options: dict[str, Any]):
+        del options
+        if operator.in_structure() != self.factor._columns():
+            raise ValueError(
+                f"FactorSolver solves with its factor's normal matrix, on "
+                f"{self.factor._columns()}; the operator given acts on "
+                f"{operator.in_structure()}: pass factor.normal_operator()."
+            )
+        return None
+
+    def compute(self, state, vector, options):
+        del state, options
+        return self.factor.solve_normal(vector), lx.RESULTS.successful, {}
+
+    def transpose(self, state, options):
+        return state, options  # N is symmetric
+
+    def conj(self, state, options):
+        return state, options  # and real
+
+    def assume_full_rank(self):
+        return True
 
 
 class DenseFactor(AbstractFactor):

@@ -60,7 +60,8 @@ def test_structured_descent_steps_are_optimistix_steps(point, name, step_size, i
     # Given either linearisation (optimistix's loop or the structured one), the same step.
     rig, problem, y, f_info = point
     structured, reference = PAIRS[name]
-    ours = structured(problem, rig.factor, **EXACT)
+    ours = structured(problem, rig.factor.normal_operator(), rig.factor.normal_inverse_operator(),
+                      **EXACT)
 
     def step(descent, f_info):
         state = descent.query(y, f_info, descent.init(y, eqx.filter_eval_shape(lambda: f_info)))
@@ -82,7 +83,8 @@ def test_structured_descents_keep_float32(horse, point):
     y = problem.scaled(start)
     f_info = structured_info(problem, y)
     for structured, _ in PAIRS.values():
-        descent = structured(problem, rig32.factor, cg_steps=8, cg_rtol=1e-2)
+        descent = structured(problem, rig32.factor.normal_operator(),
+                             rig32.factor.normal_inverse_operator(), cg_steps=8, cg_rtol=1e-2)
         state = descent.query(y, f_info, descent.init(y, eqx.filter_eval_shape(lambda: f_info)))
         assert {leaf.dtype for leaf in jax.tree.leaves(state)
                 if jnp.issubdtype(leaf.dtype, jnp.floating)} == {jnp.dtype(jnp.float32)}

@@ -3,11 +3,20 @@
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import lineax as lx
 import numpy as np
 import pytest
 
 import mvcjax
-from mvcjax._factor import DenseFactor, SparseFactor, dense_factor, make_factor, sparse_factor
+from mvcjax._factor import (
+    DenseFactor,
+    FactorSolver,
+    SparseFactor,
+    dense_factor,
+    make_factor,
+    sparse_factor,
+    sparse_operators,
+)
 
 from conftest import directional_derivatives, drag, local_point
 
@@ -74,6 +83,36 @@ def test_normal_products_agree_and_invert(small_full):
     np.testing.assert_allclose(product, dense.multiply_normal(x), rtol=1e-10,
                                atol=1e-10 * float(jnp.abs(product).max()))
     np.testing.assert_allclose(sparse.solve_normal(product), x, rtol=1e-8, atol=1e-9)
+
+
+@pytest.mark.parametrize("kind", ["dense", "sparse"])
+def test_factors_as_lineax_operators_and_solvers(small_full, kind):
+    # N and N^{-1} as lineax operators: N materialises to A^T W A from the sparse
+    # operators; lineax's own CG, preconditioned by N^{-1}, solves with N in one step;
+    # FactorSolver solves with it directly, and differentiably.
+    factor = make_factor(small_full.energy, kind)
+    normal, inverse = factor.normal_operator(), factor.normal_inverse_operator()
+    assert lx.is_symmetric(normal) and lx.is_positive_semidefinite(inverse)
+    n = small_full.energy.num_vertices
+    w = small_full.energy.weights.normalised()
+    ops = sparse_operators(small_full.energy)
+    expected = sum(float(t) * (op.T @ op).toarray() for t, op in
+                   zip((w.laplacian, w.mvc, w.length, w.handle), ops))
+    x = jax.random.normal(jax.random.key(7), (2, n), jnp.float64)
+    np.testing.assert_allclose(normal.mv(x), x @ expected, rtol=1e-9,
+                               atol=1e-9 * np.abs(expected).max())
+    b = normal.mv(x)
+    cg = lx.linear_solve(normal, b, lx.CG(rtol=1e-12, atol=1e-12, max_steps=3),
+                         options={"preconditioner": inverse})
+    assert cg.stats["num_steps"] <= 2
+    np.testing.assert_allclose(cg.value, x, rtol=1e-7, atol=1e-8)
+    direct = lx.linear_solve(normal, b, FactorSolver(factor))
+    np.testing.assert_allclose(direct.value, x, rtol=1e-8, atol=1e-9)
+    grad = jax.grad(lambda c: jnp.sum(lx.linear_solve(normal, c * b, FactorSolver(factor))
+                                      .value ** 2))(1.0)
+    assert float(grad) == pytest.approx(2 * float(jnp.sum(x**2)), rel=1e-7)
+    with pytest.raises(ValueError, match="pass factor.normal_operator"):
+        lx.linear_solve(lx.MatrixLinearOperator(jnp.eye(3)), jnp.ones(3), FactorSolver(factor))
 
 
 def test_gauss_newton_on_the_sparse_factor_matches_the_dense(small_full):

@@ -17,10 +17,10 @@ from typing import Any
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import lineax as lx
 import optimistix as optx
 from jaxtyping import Array, Float
 
-from .._factor import AbstractFactor
 from ._least_squares import ScaledProblem, StructuredJacobian
 from ._normal_cg import GaussNewtonMatrix
 
@@ -30,14 +30,15 @@ class _StructuredDescent(optx.AbstractDescent):
 
     Attributes:
         problem: the scaled residuals (optimistix's `fn`, as data).
-        factor: the rig's factor.
+        normal, preconditioner: `N` and `N^{-1}` (`GaussNewtonMatrix`).
         cg_steps, cg_rtol: the conjugate-gradient budget per linear solve.
         cg_deflate: deflate each solve by the previous step, with the curvature observed
             along it (`GaussNewtonMatrix.solve`).
     """
 
     problem: ScaledProblem
-    factor: AbstractFactor
+    normal: lx.AbstractLinearOperator
+    preconditioner: lx.AbstractLinearOperator
     cg_steps: int = eqx.field(static=True)
     cg_rtol: float = eqx.field(static=True)
     cg_deflate: bool = eqx.field(static=True, default=True)
@@ -46,12 +47,12 @@ class _StructuredDescent(optx.AbstractDescent):
         # The structured loop's Jacobian carries the point's linearisation; optimistix's
         # own (a `jax.linearize`) does not, and then it is computed again.
         at = f_info.jac.at if isinstance(f_info.jac, StructuredJacobian) else None
-        return GaussNewtonMatrix.at(self.problem, self.factor, y, at)
+        return GaussNewtonMatrix.at(self.problem, self.normal, self.preconditioner, y, at)
 
     def _previous(self, y) -> _Previous:
         # At the start there is no step yet: the previous point is this one (a zero step
         # deflates nothing), the gradient unread.
-        return _Previous(y, self.factor.multiply_normal(y), jnp.zeros_like(y))
+        return _Previous(y, self.normal.mv(y), jnp.zeros_like(y))
 
     def _solve(self, matrix: GaussNewtonMatrix, step, damping=0.0):
         return matrix.solve(self.cg_rtol, self.cg_steps, damping,
@@ -115,7 +116,8 @@ class StructuredDampedNewtonDescent(_StructuredDescent):
         del f_info_struct
         # The first step is always accepted, so this state's step is never taken: zeros.
         shapes = jax.eval_shape(
-            lambda: GaussNewtonMatrix.at(self.problem, self.factor, y).at_point())
+            lambda: GaussNewtonMatrix.at(self.problem, self.normal, self.preconditioner,
+                                         y).at_point())
         zeros = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
         no_step = (jnp.zeros_like(y), jnp.zeros_like(y), jnp.zeros((), y.dtype))
         return _DampedState(zeros, no_step, self._previous(y))
@@ -126,7 +128,7 @@ class StructuredDampedNewtonDescent(_StructuredDescent):
                             _Previous(y, matrix.normal_point, matrix.gradient))
 
     def step(self, step_size, state):
-        matrix = GaussNewtonMatrix(self.problem, self.factor, *state.point)
+        matrix = GaussNewtonMatrix(self.problem, self.normal, self.preconditioner, *state.point)
         # optimistix's damping, 1 / step_size, capped where the step size vanishes.
         dtype = matrix.gradient.dtype
         damping = (1 / jnp.maximum(step_size, jnp.finfo(dtype).eps)).astype(dtype)

@@ -181,8 +181,10 @@ class FixedG(AbstractSolver):
             # rejects: carry the counts as floats.
             return vertices, jnp.stack([info.iterations, info.converged]).astype(start.dtype)
 
+        inverse = factor.normal_inverse_operator()
+
         def precondition(r):
-            return factor.solve_normal(r.T).T  # vertices (n, 2), the factor's (2, n)
+            return inverse.mv(r.T).T  # vertices (n, 2), the factor's (2, n)
 
         def tangent_solve(hessian, rhs):
             # A linear solve that JAX can transpose, so that reverse mode works too.

@@ -11,7 +11,7 @@ across `v_r`, and since `(I - c P)^2 = I - c (2 - c) P`:
     J^T J = N - sum_r W_r c_r (2 - c_r) D_r^T P_r D_r,     N = A^T W A,
 
 and `J^T r = N V - D^T W (c v + offset)`. `N` is what the fixed-G iteration factors once
-(`AbstractFactor.solve_normal`), so `N^{-1}` preconditions the solve. Each
+(`AbstractFactor.normal_inverse_operator`), so `N^{-1}` preconditions the solve. Each
 conjugate-gradient iteration then costs one stencil gather and its scatter (the rotation
 terms) and one product with `N^{-1}`: the product with `N` itself is never formed, since
 the iteration carries it along (`conjugate_gradient`). The mean value rows, constant,
@@ -43,7 +43,6 @@ import jax.numpy as jnp
 import lineax as lx
 from jaxtyping import Array, Complex, Float
 
-from .._factor import AbstractFactor
 from ._least_squares import Linearisation, ScaledProblem, default_tol
 
 
@@ -178,7 +177,9 @@ class GaussNewtonMatrix(eqx.Module):
 
     Attributes:
         problem: the scaled residuals.
-        factor: the rig's factor (`N` and `N^{-1}`).
+        normal: `N`, the rig's constant normal matrix (`AbstractFactor.normal_operator`).
+        preconditioner: `N^{-1}` (`AbstractFactor.normal_inverse_operator`), or any
+            symmetric positive definite operator near it.
         turn: `(m,)` for each stencil row, the unit vector across its current vector
             (as a complex number; zero for a zero vector).
         softness: `(m,)` `W_r c_r (2 - c_r)`, what the rotation takes off each row's
@@ -188,23 +189,26 @@ class GaussNewtonMatrix(eqx.Module):
     """
 
     problem: ScaledProblem
-    factor: AbstractFactor
+    normal: lx.AbstractLinearOperator
+    preconditioner: lx.AbstractLinearOperator
     turn: Complex[Array, " m"]
     softness: Float[Array, " m"]
     gradient: Float[Array, "2 n"]
     normal_point: Float[Array, "2 n"]
 
     @classmethod
-    def at(cls, problem: ScaledProblem, factor: AbstractFactor, y: Float[Array, "2 n"],
+    def at(cls, problem: ScaledProblem, normal: lx.AbstractLinearOperator,
+           preconditioner: lx.AbstractLinearOperator, y: Float[Array, "2 n"],
            linearisation: Linearisation | None = None) -> GaussNewtonMatrix:
         """The matrix and the gradient at `y`, from `problem.linearise(y)` (computed
         unless given)."""
         at = problem.linearise(y) if linearisation is None else linearisation
         weight = problem.row_weight**2
-        normal_point = factor.multiply_normal(y)
+        normal_point = normal.mv(y)
         gradient = normal_point - problem.stencils_transpose(weight * (at.turned + problem.offset))
-        return cls(problem, factor, turn=at.turn, softness=weight * at.scale * (2 - at.scale),
-                   gradient=gradient, normal_point=normal_point)
+        return cls(problem, normal, preconditioner, turn=at.turn,
+                   softness=weight * at.scale * (2 - at.scale), gradient=gradient,
+                   normal_point=normal_point)
 
     def at_point(self) -> tuple[Array, Array, Array, Array]:
         """What depends on the point (`turn`, `softness`, `gradient`, `normal_point`):
@@ -250,7 +254,7 @@ class GaussNewtonMatrix(eqx.Module):
         if previous is not None:
             d, normal_d, observed = previous
             deflation = (d, matvec(d, normal_d), normal_d, observed + damping * _dot(d, d))
-        x, _ = conjugate_gradient(matvec, self.gradient, self.factor.solve_normal,
+        x, _ = conjugate_gradient(matvec, self.gradient, self.preconditioner.mv,
                                   rtol, max_steps, deflation)
         g = self.gradient
         stuck = (_dot(x, x) == 0) & (_dot(g, g) > 0)
@@ -262,11 +266,12 @@ class HessianCG(lx.AbstractLinearSolver):
     least-squares objective (its Hessian, symmetric) by `hessian_solve`.
 
     Attributes:
-        factor: the rig's factor, without gradients (the preconditioner does not change
-            the solution, and optimistix's adjoint takes no tangents through its solver).
+        preconditioner: `N^{-1}` (`AbstractFactor.normal_inverse_operator`), without
+            gradients (the preconditioner does not change the solution, and
+            optimistix's adjoint takes no tangents through its solver).
     """
 
-    factor: AbstractFactor
+    preconditioner: lx.AbstractLinearOperator
 
     def init(self, operator: lx.AbstractLinearOperator, options: dict[str, Any]):
         del options
@@ -274,7 +279,8 @@ class HessianCG(lx.AbstractLinearSolver):
 
     def compute(self, state, vector, options):
         del options
-        return hessian_solve(state.mv, vector, self.factor.solve_normal), lx.RESULTS.successful, {}
+        return (hessian_solve(state.mv, vector, self.preconditioner.mv), lx.RESULTS.successful,
+                {})
 
     def transpose(self, state, options):
         return state.transpose(), options

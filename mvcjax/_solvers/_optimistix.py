@@ -111,8 +111,10 @@ class _OptimistixLeastSquares(AbstractSolver):
                 "atol": default_tol(dtype) if self.atol is None else self.atol}
         if self.linear_solver == "cg":
             return _StructuredGaussNewton(
-                **tols, descent=structured(problem, factor, self.cg_steps, self.cg_rtol,
-                                   self.cg_deflate),
+                **tols, descent=structured(
+                    problem=problem, normal=factor.normal_operator(),
+                    preconditioner=factor.normal_inverse_operator(), cg_steps=self.cg_steps,
+                    cg_rtol=self.cg_rtol, cg_deflate=self.cg_deflate),
                 search=search, problem=problem)
         return _GaussNewtonFamily(**tols, descent=descent, search=search)
 
@@ -124,7 +126,8 @@ class _OptimistixLeastSquares(AbstractSolver):
             problem.scaled(init),
             # Implicit gradients by CG on the Hessian: optimistix's default would form it
             # densely (13 GB in float64 for a 20k-vertex full solve).
-            adjoint=optx.ImplicitAdjoint(linear_solver=HessianCG(jax.lax.stop_gradient(factor))),
+            adjoint=optx.ImplicitAdjoint(linear_solver=HessianCG(
+                jax.lax.stop_gradient(factor).normal_inverse_operator())),
             max_steps=self.max_steps,
             throw=False,
         )
