@@ -115,7 +115,7 @@ def measure(name, shape, handles, drag, options, repeats, igl, figures):
     paper = mvcjax.Rig.build(shape, handles, skinning="mvc", **options)
     full_options = {k: v for k, v in options.items() if k in ("shape_spacing", "dtype")}
     full, full_preprocess = _built(
-        lambda: mvcjax.Rig.build(shape, handles, control="shape", **full_options))
+        lambda: mvcjax.Rig.build(shape, handles, control=mvcjax.FullSolve(), **full_options))
     if not np.array_equal(np.asarray(full.shape_mesh.faces), np.asarray(ours.shape_mesh.faces)):
         raise RuntimeError(f"{name}: the full solve's shape mesh differs from the rig's.")
 

@@ -1,6 +1,12 @@
 """mvcjax: fast, differentiable 2D shape deformation with mean value coordinates."""
 
 from . import datasets as datasets
+from ._control import (
+    AbstractControl as AbstractControl,
+    FullSolve as FullSolve,
+    GivenControl as GivenControl,
+    PaperControl as PaperControl,
+)
 from ._coordinates import mean_value_coordinates as mean_value_coordinates
 from ._energy import (
     Energy as Energy,
@@ -11,6 +17,16 @@ from ._energy import (
     mvc_residual as mvc_residual,
     residuals as residuals,
     total_energy as total_energy,
+)
+from ._factor import (
+    AbstractFactor as AbstractFactor,
+    AbstractFactorMethod as AbstractFactorMethod,
+    DenseFactor as DenseFactor,
+    DenseG as DenseG,
+    FactorBySize as FactorBySize,
+    FactorSolver as FactorSolver,
+    SparseFactor as SparseFactor,
+    SparseLU as SparseLU,
 )
 from ._frames import deform_frames as deform_frames
 from ._handles import Bone as Bone, Handles as Handles

@@ -453,14 +453,65 @@ def sparse_factor(energy: Energy) -> SparseFactor:
     )
 
 
-FACTORS = ("dense", "sparse")
+class AbstractFactorMethod(eqx.Module):
+    """How `Rig.build` computes the rig's factor from its energy."""
+
+    @abc.abstractmethod
+    def __call__(self, energy: Energy) -> AbstractFactor:
+        """The factor for the energy's weights."""
 
 
-def make_factor(energy: Energy, kind: str | None = None) -> AbstractFactor:
-    """The global step's factor: `"dense"` (the paper's `G`), `"sparse"`, or by size
-    (`None`: dense up to 1000 vertices, where one product beats a sparse solve)."""
-    if kind is None:
-        kind = "dense" if energy.num_vertices <= 1000 else "sparse"
-    if kind not in FACTORS:
-        raise ValueError(f"factor must be one of {FACTORS} or None (by size), got {kind!r}.")
-    return dense_factor(energy) if kind == "dense" else sparse_factor(energy)
+class DenseG(AbstractFactorMethod):
+    """The paper's dense `G` (eq. 8): a step is one small matrix product. Pure JAX, so
+    new weights recompute it inside `jit` and `grad`; for control meshes up to about a
+    thousand vertices (it stores `n x 3n` numbers)."""
+
+    def __call__(self, energy):
+        return dense_factor(energy)
+
+
+class SparseLU(AbstractFactorMethod):
+    """The normal matrix factored once on the host by a symmetric sparse LU: `O(nnz)`
+    memory, for meshes of thousands of vertices (the full solve). New weights refactor
+    it on the host, outside `jit`."""
+
+    def __call__(self, energy):
+        return sparse_factor(energy)
+
+
+class FactorBySize(AbstractFactorMethod):
+    """`DenseG` up to `max_dense` vertices, where one product beats a sparse solve, and
+    `SparseLU` beyond (the default).
+
+    Attributes:
+        max_dense: the largest control mesh given a dense `G` (default 1000).
+    """
+
+    max_dense: int = eqx.field(default=1000, static=True)
+
+    def __call__(self, energy):
+        method = DenseG() if energy.num_vertices <= self.max_dense else SparseLU()
+        return method(energy)
+
+
+_FACTOR_NAMES = {"dense": DenseG, "sparse": SparseLU}
+
+
+def as_factor_method(factor) -> AbstractFactorMethod:
+    """The factor option of `Rig.build`: an `AbstractFactorMethod`, or the older
+    spellings `"dense"`, `"sparse"` and `None` (by size)."""
+    if isinstance(factor, AbstractFactorMethod):
+        return factor
+    if factor is None:
+        return FactorBySize()
+    if isinstance(factor, str) and factor in _FACTOR_NAMES:
+        return _FACTOR_NAMES[factor]()
+    raise ValueError(
+        "factor must be one of mvcjax.DenseG(), mvcjax.SparseLU() or mvcjax.FactorBySize() "
+        f"(or the names 'dense', 'sparse', None), got {factor!r}."
+    )
+
+
+def make_factor(energy: Energy, factor=None) -> AbstractFactor:
+    """The global step's factor by `factor`, any spelling `as_factor_method` takes."""
+    return as_factor_method(factor)(energy)

@@ -2,28 +2,19 @@
 
 from __future__ import annotations
 
-import itertools
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import shapely
 from jaxtyping import Array, Float, Int
 
 from . import _coordinates as coords, _meshing as meshing, _topology as topology
 from ._checks import as_points, kind_of
+from ._control import AbstractControl, PaperControl, as_control
 from ._energy import Energy, Weights, check_weights, rigid_start, total_energy
-from ._factor import AbstractFactor, make_factor
+from ._factor import AbstractFactor, AbstractFactorMethod, as_factor_method
 from ._frame import Frame, bounding_frame, check_representable, frame_array
-from ._handles import (
-    Handles,
-    bone_samples,
-    bone_samples_on,
-    check_handles,
-    make_handles,
-    pin,
-)
+from ._handles import Handles, check_handles, make_handles, pin
 from ._shape import Shape
 from ._skinning import (
     AbstractSkinning,
@@ -164,54 +155,6 @@ def _laplacian_index(loops: list[np.ndarray]) -> np.ndarray:
     return np.concatenate(rows)
 
 
-def _loops_and_inner(vertices, faces):
-    """A mesh's boundary loops (`V_CP`, the outer loop first) and its other vertices (`V_CG`)."""
-    loops = topology.boundary_loops(faces)
-    loops.sort(key=lambda lp: -abs(shapely.Polygon(vertices[lp]).area))
-    on_loop = np.zeros(len(vertices), bool)
-    on_loop[np.concatenate(loops)] = True
-    return loops, np.flatnonzero(~on_loop)
-
-
-def _control_arrays(control):
-    """The user's control mesh, `(vertices, faces)`, checked."""
-    if not (isinstance(control, (tuple, list)) and len(control) == 2):
-        raise TypeError(
-            f"control must be None, 'shape' or a (vertices, faces) pair, got {control!r}."
-        )
-    vertices = as_points(control[0], "control vertices", "c")
-    try:
-        faces = np.asarray(control[1])
-    except ValueError:
-        faces = np.asarray([], object)
-    if faces.dtype.kind not in "iu" or faces.ndim != 2 or faces.shape[1] != 3:
-        raise ValueError(
-            "control faces must be an integer array of shape (f, 3), vertex indices of each "
-            f"triangle, got {faces.dtype.name} of shape {faces.shape}."
-        )
-    faces = faces.astype(np.int64)
-    if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
-        raise ValueError(
-            f"control faces index vertices {faces.min()} to {faces.max()}, but there are "
-            f"{len(vertices)} control vertices; indices run from 0 to {len(vertices) - 1}."
-        )
-    return vertices, meshing._counter_clockwise(vertices, faces)
-
-
-def _pinned_vertices(vertices, pinned, tol, to_world):
-    """The control vertex at every pinned point of a control mesh of the user's."""
-    dist = np.linalg.norm(vertices[None] - pinned[:, None], axis=2)
-    idx = np.argmin(dist, axis=1)
-    bad = np.flatnonzero(dist[np.arange(len(pinned)), idx] > tol)
-    if len(bad):
-        raise ValueError(
-            f"The handle point {to_world(pinned[bad[0]]).tolist()} is not a vertex of the "
-            "given control mesh; every point handle and both ends of every bone must be "
-            "control vertices: add it to the mesh."
-        )
-    return idx
-
-
 def _check_rig(shape_vertices, control_vertices, control_faces, skin_index, skin_weight):
     """What every rig must satisfy, checked once at build time: a failure is a bug, and an
     error now instead of a NaN later."""
@@ -281,9 +224,9 @@ class Rig(eqx.Module):
         control_spacing: float | None = None,
         margin: float | None = None,
         weights: Weights | None = None,
-        control=None,
+        control: AbstractControl | str | tuple | None = None,
         skinning: AbstractSkinning | str = "blended",
-        factor: str | None = None,
+        factor: AbstractFactorMethod | str | None = None,
         dtype=None,
         max_triangles: int = 400_000,
     ) -> Rig:
@@ -301,28 +244,25 @@ class Rig(eqx.Module):
             shape_spacing: edge length of the shape mesh (default: `sqrt(area) / 40`,
                 about 3k vertices on a compact shape, or half the shape's thickness,
                 twice its area over its perimeter, if that is smaller).
-            control_spacing: spacing of the inner control vertices and longest edge of
-                the control polygon (default: `sqrt(area) / 8`).
-            margin: how far outside the shape the control polygon runs, where no gap is
-                narrower than twice that (default: `control_spacing / 3`).
+            control_spacing, margin: the paper's control mesh's spacing and margin
+                (`PaperControl`'s, which says their defaults); the spacing also sets how
+                far apart a bone's pinned points are.
             weights: the term weights (default `Weights()`).
-            control: `None` (default) builds the paper's control mesh; `"shape"` solves on
-                the shape mesh itself (the paper's "full solve", after Weng et al.: its
-                boundary loops are `V_CP`, its interior vertices `V_CG`, every interior
-                edge is in `H`, and the skinning is the identity); or a control mesh of
-                your own, as `(vertices (c, 2), faces (f, 3))`, covering the shape, with a
-                vertex at every handle. Its boundary loops are `V_CP`, every other vertex
-                is `V_CG`.
+            control: how the control mesh is made: `mvcjax.PaperControl()` (default, the
+                paper's), `mvcjax.FullSolve()` (the shape mesh itself) or
+                `mvcjax.GivenControl(vertices, faces)` (a mesh of your own); the older
+                spellings `None`, `"shape"` and `(vertices, faces)` work too.
             skinning: how the shape mesh follows the control mesh:
                 `mvcjax.BlendedMVCSkinning()` (default: continuous, and the smoothest),
                 `mvcjax.MVCSkinning()` (the paper's eq. 1, which jumps across control
                 edges) or `mvcjax.BarycentricSkinning()` (the paper's "control mesh
                 only"); the short names `"blended"`, `"mvc"` and `"barycentric"` work too.
-                Ignored with `control="shape"` (the shape mesh carries itself).
-            factor: the global step of the fixed-G iteration: `"dense"` (the paper's `G`,
-                recomputed inside `jit` when weights change), `"sparse"` (a sparse LU of
-                the normal matrix, for meshes of thousands of vertices), or `None` (by
-                size: dense up to 1000 control vertices).
+                Ignored with `FullSolve()` (the shape mesh carries itself).
+            factor: the global step of the fixed-G iteration: `mvcjax.DenseG()` (the
+                paper's `G`, recomputed inside `jit` when weights change),
+                `mvcjax.SparseLU()` (for meshes of thousands of vertices) or
+                `mvcjax.FactorBySize()` (default: dense up to 1000 control vertices); the
+                older names `"dense"`, `"sparse"` and `None` work too.
             dtype: `jnp.float32` or `jnp.float64` (default: JAX's default float; float64
                 needs `jax_enable_x64`).
             max_triangles: refuse, before meshing, a shape mesh estimated to have more
@@ -341,11 +281,8 @@ class Rig(eqx.Module):
         if isinstance(max_triangles, bool) or not isinstance(max_triangles, (int, np.integer)) \
                 or max_triangles < 1:
             raise ValueError(f"max_triangles must be a positive integer, got {max_triangles!r}.")
-        if not (control is None or isinstance(control, (tuple, list))
-                or (isinstance(control, str) and control == "shape")):
-            raise TypeError(
-                f"control must be None, 'shape' or a (vertices, faces) pair, got {control!r}."
-            )
+        control = as_control(control, control_spacing, margin)
+        factor = as_factor_method(factor)
 
         centre, scale = bounding_frame(shape.outer)
         check_representable(centre, scale, dtype)
@@ -353,69 +290,35 @@ class Rig(eqx.Module):
         local = Shape.from_polygon((shape.outer - centre) / scale,
                                    [(h - centre) / scale for h in shape.holes])
         local_points = (points - centre) / scale
+        if isinstance(control, PaperControl):
+            control_spacing, margin = control.spacing, control.margin
         shape_spacing, control_spacing, margin = _spacings(
             local, scale, shape_spacing, control_spacing, margin
         )
         _check_mesh_size(local, shape_spacing, scale, max_triangles)
-        tol = 1e-6  # of the diagonal, 1 in the rig's frame
-        if isinstance(control, (tuple, list)):
-            given_vertices, given_faces = _control_arrays(control)
-            given_vertices = (given_vertices - centre) / scale
-
-            def samples(a, b):
-                return np.union1d([0.0, 1.0], bone_samples_on(a, b, given_vertices, tol))
-        else:
-            def samples(a, b):
-                return bone_samples(a, b, control_spacing)
-        pinned, row_pin, rows = pin(local_points, bones, samples, tol)
+        samples = control.bone_samples(control_spacing, frame)
+        pinned, row_pin, rows = pin(local_points, bones, samples, 1e-6)
         handle_rows = make_handles(local_points, bones, rows, dtype)
 
         local = meshing.thin_outline(local, shape_spacing)
         shape_vertices, shape_faces, shape_pinned = meshing.triangulate_shape(
             local, shape_spacing, pinned
         )
-        shape_handles = shape_pinned[row_pin]
-        if isinstance(control, str):
-            return cls._full(shape_vertices, shape_faces, shape_handles, handle_rows, weights,
-                             factor, dtype, frame)
-        if control is None:
-            loops = meshing.control_polygon(local, margin, control_spacing)
-            inner_shape = meshing.inner_control_vertices(
-                shape_vertices, shape_pinned, loops, control_spacing
-            )
-            control_vertices, control_faces = meshing.triangulate_control(
-                loops, shape_vertices[inner_shape]
-            )
-            offsets = np.cumsum([0, *(len(lp) for lp in loops)])
-            loops = [np.arange(a, b) for a, b in itertools.pairwise(offsets)]
-            inner = np.arange(offsets[-1], len(control_vertices))
-            control_pinned = inner[: len(pinned)]
+        parts = control.build(local, shape_vertices, shape_faces, shape_pinned, pinned,
+                              control_spacing, margin, frame)
+        if parts.is_shape_mesh:
+            n = len(shape_vertices)
+            skin = (np.arange(n)[:, None], np.ones((n, 1)), BarycentricSkinning())
         else:
-            control_vertices, control_faces = given_vertices, given_faces
-            loops, inner = _loops_and_inner(control_vertices, control_faces)
-            control_pinned = _pinned_vertices(control_vertices, pinned, tol,
-                                              lambda p: p * scale + centre)
-
-        skin_index, skin_weight = skinning.weights_at(
-            shape_vertices, control_vertices, control_faces, what="shape vertices"
-        )
-        _check_rig(shape_vertices, control_vertices, control_faces, skin_index, skin_weight)
+            skin_index, skin_weight = skinning.weights_at(
+                shape_vertices, parts.vertices, parts.faces, what="shape vertices"
+            )
+            _check_rig(shape_vertices, parts.vertices, parts.faces, skin_index, skin_weight)
+            skin = (skin_index, skin_weight, skinning)
         return cls._assemble(
-            (shape_vertices, shape_faces, shape_handles),
-            (control_vertices, control_faces, loops, inner, control_pinned[row_pin]),
-            (skin_index, skin_weight, skinning), handle_rows, weights, factor, dtype, frame,
-        )
-
-    @classmethod
-    def _full(cls, vertices, faces, pinned, handles, weights, factor, dtype, frame) -> Rig:
-        """The shape mesh as its own control mesh, carried by the identity."""
-        loops, inner = _loops_and_inner(vertices, faces)
-        identity = (np.arange(len(vertices))[:, None], np.ones((len(vertices), 1)),
-                    BarycentricSkinning())
-        return cls._assemble(
-            (vertices, faces, pinned),
-            (vertices, faces, loops, inner, pinned),
-            identity, handles, weights, factor, dtype, frame,
+            (shape_vertices, shape_faces, shape_pinned[row_pin]),
+            (parts.vertices, parts.faces, parts.loops, parts.inner, parts.pinned[row_pin]),
+            skin, handle_rows, weights, factor, dtype, frame,
         )
 
     @classmethod
@@ -439,7 +342,7 @@ class Rig(eqx.Module):
             handles=handles,
             skinning=Skinning(_ints(skinning[0]), _array(skinning[1], dtype), skinning[2]),
             energy=energy,
-            factor=make_factor(energy, factor),
+            factor=factor(energy),
             frame=frame_array(centre, scale, dtype),
         )
 

@@ -26,7 +26,7 @@
 # - (da) **control mesh + MVC**, the paper's method (`Rig.build(...)`; mvcjax's default
 #   skinning is a continuous blend of the MVC, `skinning="mvc"` is the paper's own);
 # - (ra) the **full solve**: the same energy on the shape mesh itself
-#   (`Rig.build(..., control="shape")`).
+#   (`Rig.build(..., control=mvcjax.FullSolve())`).
 #
 # Every rig is built through the same `Rig.build` and deformed with the same
 # `rig.deform(targets)`, the paper's 15 fixed-G iterations from the same start.
@@ -57,7 +57,7 @@ def compare(name):
         "paper's MVC": model.rig(skinning="mvc"),
         "(da) control mesh + MVC": model.rig(),
         "(ra) full solve": mvcjax.Rig.build(
-            model.shape, model.handles, control="shape",
+            model.shape, model.handles, control=mvcjax.FullSolve(),
             shape_spacing=model.options.get("shape_spacing"),
         ),
     }

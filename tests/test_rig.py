@@ -209,6 +209,32 @@ def test_user_control_mesh(horse, horse_rig):
     np.testing.assert_allclose(rig.deform(targets), horse_rig.deform(targets), atol=1e-6)
 
 
+def test_options_as_objects_build_what_the_old_spellings_do(horse, horse_rig):
+    cm = horse_rig.control_mesh
+    handles = datasets.horse_handles()
+    given = mvcjax.Rig.build(horse, handles, dtype=jnp.float64,
+                             control=mvcjax.GivenControl(cm.vertices, cm.faces),
+                             factor=mvcjax.SparseLU())
+    assert isinstance(given.factor, mvcjax.SparseFactor)
+    paper = mvcjax.Rig.build(horse, handles, dtype=jnp.float64, control=mvcjax.PaperControl(),
+                             factor=mvcjax.DenseG(), skinning=mvcjax.BlendedMVCSkinning())
+    targets = drag(horse_rig, [[30.0, 0.0], [0, 0], [0, 0], [0, 0], [0, 0]])
+    for rig in (given, paper):
+        np.testing.assert_allclose(rig.deform(targets), horse_rig.deform(targets), atol=1e-8)
+    # The paper's spacing, as an option or as the older keyword: the same control mesh.
+    coarse = mvcjax.Rig.build(horse, handles, control=mvcjax.PaperControl(spacing=40.0))
+    keyword = mvcjax.Rig.build(horse, handles, control_spacing=40.0)
+    np.testing.assert_array_equal(coarse.control_mesh.faces, keyword.control_mesh.faces)
+    assert coarse.control_mesh.vertices.shape[0] < cm.vertices.shape[0]
+    # FactorBySize decides by the control mesh's size.
+    small = mvcjax.Rig.build(horse, handles, factor=mvcjax.FactorBySize(max_dense=50))
+    assert isinstance(small.factor, mvcjax.SparseFactor)
+    with pytest.raises(ValueError, match="given twice"):
+        mvcjax.Rig.build(horse, handles, control=mvcjax.PaperControl(spacing=40.0), margin=3.0)
+    with pytest.raises(ValueError, match="factor must be one of mvcjax.DenseG"):
+        mvcjax.Rig.build(horse, handles, factor="lu")
+
+
 def test_bad_handles_and_targets_are_explained(horse, horse_rig):
     with pytest.raises(ValueError, match=r"handles\[1\].*outside the shape.*closest point"):
         mvcjax.Rig.build(horse, [[100.0, 200.0], [5.0, 5.0]])

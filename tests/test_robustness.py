@@ -174,7 +174,7 @@ def small():
     (dict(margin=0.0), ValueError, "margin"),
     (dict(control=3), TypeError, "control must be"),
     (dict(control="mesh"), TypeError, "control must be"),
-    (dict(control=(star(), np.array([[0, 1, 99]]))), ValueError, "control faces index"),
+    (dict(control=(star(), np.array([[0, 1, 99]]))), ValueError, "faces index vertices"),
     (dict(control=(star(), np.array([[0.0, 1, 2]]))), ValueError, "integer array"),
     (dict(weights={"handle": 10.0}), TypeError, r"mvcjax.Weights\(\*\*\{.handle.: 10.0\}\)"),
     (dict(skinning="nearest"), ValueError, "skinning must be"),
