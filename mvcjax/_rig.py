@@ -244,9 +244,9 @@ class Rig(eqx.Module):
             shape_spacing: edge length of the shape mesh (default: `sqrt(area) / 40`,
                 about 3k vertices on a compact shape, or half the shape's thickness,
                 twice its area over its perimeter, if that is smaller).
-            control_spacing, margin: the paper's control mesh's spacing and margin
-                (`PaperControl`'s, which says their defaults); the spacing also sets how
-                far apart a bone's pinned points are.
+            control_spacing: the paper's control mesh's spacing (`PaperControl`'s, which
+                says its default); it also sets how far apart a bone's pinned points are.
+            margin: the paper's control mesh's margin (`PaperControl`'s).
             weights: the term weights (default `Weights()`).
             control: how the control mesh is made: `mvcjax.PaperControl()` (default, the
                 paper's), `mvcjax.FullSolve()` (the shape mesh itself) or
