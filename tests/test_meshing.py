@@ -4,7 +4,7 @@ import pytest
 import shapely
 
 import mvcjax
-from mvcjax._meshing import control_polygon, triangulate_shape
+from mvcjax._meshing import control_polygon, triangulate_control, triangulate_shape
 
 
 def u_shape(gap):
@@ -67,16 +67,14 @@ def test_holes_are_respected(ring_shape):
 def test_close_parts_move_independently(horse):
     """One front hoof dragged: the other follows as in the full solve on the shape mesh,
     not as with a control polygon from a plain offset, whose triangles bridge the slot."""
-    from mvcjax._meshing import _simplify_ring, triangulate_control
-
     handles = np.array([[280.0, 20], [62, 20], [125, 27], [200, 230], [372, 238], [262, 95]])
     ours = mvcjax.Rig.build(horse, handles)
     coarse = mvcjax.Rig.build(horse, handles, shape_spacing=10.0)
     full = mvcjax.Rig.build(horse, handles, shape_spacing=10.0, control=(
         np.asarray(coarse.shape_mesh.vertices), np.asarray(coarse.shape_mesh.faces)))
-    offset = horse.polygon.buffer(3.0)
-    inside, outside = offset.buffer(1e-6), horse.polygon.buffer(0.3)
-    loop = _simplify_ring(np.asarray(offset.exterior.coords)[:-1], 26.0, inside, outside)
+    # A control polygon from a plain offset, simplified to the control spacing by shapely.
+    offset = horse.polygon.buffer(3.0).exterior.simplify(1.0)
+    loop = np.asarray(shapely.segmentize(offset, 26.0).coords)[:-1]
     cm = ours.control_mesh
     bridged = mvcjax.Rig.build(horse, handles, control=triangulate_control(
         [loop], np.asarray(cm.vertices[cm.inner])))
