@@ -150,6 +150,19 @@ def _check_mesh_size(local: Shape, shape_spacing: float, scale: float, max_trian
         )
 
 
+def _to_local(points: np.ndarray, frame) -> np.ndarray:
+    """Points in the rig's frame, snapped to a grid of `SNAP` of the diagonal: the same
+    shape anywhere and at any scale then reaches Triangle as the same numbers (its
+    refinement turns a last-bit difference into a different mesh)."""
+    centre, scale = frame
+    return np.round((points - centre) / scale / SNAP) * SNAP
+
+
+# Far below any detail a rig resolves (`RESOLUTION`, 1e-5), far above float64's
+# round-off of a shape placed up to 1e6 sizes from the origin.
+SNAP = 2.0**-32
+
+
 def _laplacian_index(loops: list[np.ndarray]) -> np.ndarray:
     rows = [np.stack([lp, np.roll(lp, 1), np.roll(lp, -1)], axis=1) for lp in loops]
     return np.concatenate(rows)
@@ -287,9 +300,9 @@ class Rig(eqx.Module):
         centre, scale = bounding_frame(shape.outer)
         check_representable(centre, scale, dtype)
         frame = (centre, scale)
-        local = Shape.from_polygon((shape.outer - centre) / scale,
-                                   [(h - centre) / scale for h in shape.holes])
-        local_points = (points - centre) / scale
+        local = Shape.from_polygon(_to_local(shape.outer, frame),
+                                   [_to_local(h, frame) for h in shape.holes])
+        local_points = _to_local(points, frame)
         if isinstance(control, PaperControl):
             control_spacing, margin = control.spacing, control.margin
         shape_spacing, control_spacing, margin = _spacings(

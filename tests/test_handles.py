@@ -249,3 +249,23 @@ def test_a_collapsed_bone_target_stays_finite(bone_rig):
     assert bool(jnp.all(jnp.isfinite(moved)))
     g = jax.grad(lambda x: jnp.sum(bone_rig.deform(x) ** 2))(jnp.asarray(t))
     assert bool(jnp.all(jnp.isfinite(g)))
+
+
+@pytest.mark.parametrize("scale, offset", [(1e-3, (5e3, -2e3)), (1e4, (0.0, 3e6))])
+def test_bones_do_not_depend_on_where_the_shape_sits(bone_rig, character, scale, offset):
+    offset = np.asarray(offset)
+
+    def place(p):
+        return np.asarray(p) * scale + offset
+
+    handles = [place(h) if not isinstance(h, mvcjax.Bone) else
+               mvcjax.Bone(place(h.start), place(h.end), stretch=h.stretch)
+               for h in character_handles(character)]
+    shape = mvcjax.Shape.from_polygon(place(character.shape.outer))
+    options = {k: v * scale for k, v in character.options.items()}
+    moved = mvcjax.Rig.build(shape, handles, dtype=jnp.float64, **options)
+    assert moved.control_mesh.handles.shape == bone_rig.control_mesh.handles.shape
+    targets = arm_raised(bone_rig, 45.0)
+    here = np.asarray(bone_rig.deform(targets))
+    there = (np.asarray(moved.deform(place(targets))) - offset) / scale
+    assert np.abs(there - here).max() < 1e-8 * character.shape.diagonal
