@@ -79,8 +79,8 @@ class PaperControl(AbstractControl):
             than twice that (default: `spacing / 3`).
     """
 
-    spacing: float | None = eqx.field(default=None, static=True)
-    margin: float | None = eqx.field(default=None, static=True)
+    spacing: float | int | None = eqx.field(default=None, static=True)
+    margin: float | int | None = eqx.field(default=None, static=True)
 
     def build(self, local, shape_vertices, shape_faces, shape_pinned, pinned, spacing, margin,
               frame):

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from jaxtyping import Bool, Float, Int
+from jaxtyping import ArrayLike, Bool, Float, Int
 
 
 def cross(a, b):
@@ -12,9 +12,9 @@ def cross(a, b):
 
 
 def mean_value_coordinates(
-    points: Float[np.ndarray, "n 2"],
-    polygons: Float[np.ndarray, "n k 2"],
-    valid: Bool[np.ndarray, "n k"] | None = None,
+    points: Float[ArrayLike, "n 2"],
+    polygons: Float[ArrayLike, "n k 2"],
+    valid: Bool[ArrayLike, "n k"] | None = None,
     eps: float = 1e-12,
 ) -> Float[np.ndarray, "n k"]:
     """Mean value coordinates of each point in its own polygon (Floater 2003, eq. 1).

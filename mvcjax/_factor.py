@@ -27,7 +27,7 @@ import lineax as lx
 import numpy as np
 import scipy.sparse
 import scipy.sparse.linalg
-from jaxtyping import Array, Complex, Float, Int
+from jaxtyping import Array, ArrayLike, Complex, Float, Int
 
 from ._energy import Energy
 from ._stencils import Stencil, apply_stencils, apply_stencils_transpose, length_scale
@@ -103,11 +103,12 @@ class StepData(eqx.Module):
 
     Attributes:
         rest_local: `(m,)` `[delta; e]` at the rest mesh, as the step computes it.
-        constant: `(2, n)` the rest mesh and the targets' share of the step.
+        constant: `(2, n)` the rest mesh and the targets' share of the step (`(n, 2, f)`
+            for many frames, `handle_part_frames`).
     """
 
     rest_local: Complex[Array, " m"]
-    constant: Float[Array, "2 n"]
+    constant: Float[Array, "2 n"] | Float[Array, "n 2 f"]
 
 
 class AbstractFactor(eqx.Module):
@@ -317,7 +318,8 @@ _HOST_SOLVES: weakref.WeakValueDictionary[int, _HostSolve] = weakref.WeakValueDi
 _HOST_KEYS = itertools.count()
 
 
-def _host_solve(key: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+def _host_solve(key: Int[ArrayLike, "*batch"],
+                rhs: Float[ArrayLike, "*batch n 2"]) -> Float[np.ndarray, "*batch n 2"]:
     # Under vmap the key is broadcast with the right-hand sides: any entry is the key.
     return _HOST_SOLVES[int(np.asarray(key).reshape(-1)[0])](rhs)
 
@@ -345,7 +347,7 @@ class _HostSolve:
     def __hash__(self) -> int:
         return hash((_HostSolve, self.size))
 
-    def __call__(self, rhs: np.ndarray) -> np.ndarray:
+    def __call__(self, rhs: Float[ArrayLike, "*batch n 2"]) -> Float[np.ndarray, "*batch n 2"]:
         # rhs: (..., n, 2), any leading batch axes (vmap): solve them all at once as columns.
         rhs = np.asarray(rhs)
         lead = rhs.shape[:-2]

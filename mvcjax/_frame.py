@@ -12,7 +12,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 # The finest detail a rig must resolve, relative to the shape's diagonal: the user's
 # coordinates of a shape far from the origin must still hold it in the rig's dtype.
@@ -31,11 +31,11 @@ class Frame(eqx.Module):
     centre: Float[Array, " 2"]
     scale: Float[Array, ""]
 
-    def to_local(self, points: Float[Array, "*n 2"]) -> Float[Array, "*n 2"]:
+    def to_local(self, points: Float[ArrayLike, "*n 2"]) -> Float[Array, "*n 2"]:
         """User coordinates to the rig's (centred, unit diagonal)."""
         return (points - self.centre) / self.scale
 
-    def to_world(self, points: Float[Array, "*n 2"]) -> Float[Array, "*n 2"]:
+    def to_world(self, points: Float[ArrayLike, "*n 2"]) -> Float[Array, "*n 2"]:
         """The rig's coordinates back to the user's."""
         return points * self.scale + self.centre
 

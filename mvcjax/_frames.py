@@ -3,6 +3,8 @@ over devices."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -64,11 +66,11 @@ def _deform_sharded(rig: Rig, targets, solver: AbstractSolver, chunk: int, mesh:
 
 def deform_frames(
     rig: Rig,
-    targets: Float[Array, "frames h 2"],
+    targets: Any,
     solver: AbstractSolver = FixedG(),
     *,
-    chunk: int = 64,
-    devices=None,
+    chunk: Any = 64,
+    devices: Any = None,
 ) -> Float[Array, "frames n 2"]:
     """Deformed shape-mesh vertices for every frame of `targets`.
 

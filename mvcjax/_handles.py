@@ -10,6 +10,8 @@ here alone.
 
 from __future__ import annotations
 
+from typing import Any
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
@@ -42,7 +44,7 @@ class Bone(eqx.Module):
     end: np.ndarray
     stretch: bool = eqx.field(default=False, static=True)
 
-    def __init__(self, start, end, *, stretch: bool = False):
+    def __init__(self, start: Any, end: Any, *, stretch: Any = False):
         self.start = as_point(start, "Bone start")
         self.end = as_point(end, "Bone end")
         if not isinstance(stretch, (bool, np.bool_)):

@@ -24,7 +24,7 @@ def _resample_ring(ring: np.ndarray, step: float) -> np.ndarray:
     return start + t[:, None] * (np.repeat(nxt, counts, axis=0) - start)
 
 
-def _ring_segments(offset: int, n: int) -> np.ndarray:
+def _ring_segments(offset: int | np.integer, n: int) -> np.ndarray:
     i = np.arange(n)
     return np.stack([offset + i, offset + (i + 1) % n], axis=1)
 

@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import numpy as np
-from jaxtyping import Float, Int
+from jaxtyping import ArrayLike, Float, Int
 
 from ._coordinates import cross
 from ._topology import face_pairs
 
 
 def difference(
-    a: Float[np.ndarray, "n 2"], b: Float[np.ndarray, "n 2"], rest: Float[np.ndarray, "n 2"]
+    a: Float[ArrayLike, "n 2"], b: Float[ArrayLike, "n 2"], rest: Float[ArrayLike, "n 2"]
 ) -> tuple[float, float]:
     """Mean and max vertex distance between two deformed meshes, in percent of the rest
     bounding-box diagonal."""
@@ -21,9 +21,9 @@ def difference(
 
 
 def deformation_gradients(
-    rest: Float[np.ndarray, "n 2"],
-    deformed: Float[np.ndarray, "n 2"],
-    faces: Int[np.ndarray, "f 3"],
+    rest: Float[ArrayLike, "n 2"],
+    deformed: Float[ArrayLike, "n 2"],
+    faces: Int[ArrayLike, "f 3"],
 ) -> Float[np.ndarray, "f 2 2"]:
     """The constant deformation gradient of each triangle (rest -> deformed)."""
     rest, deformed = np.asarray(rest, np.float64), np.asarray(deformed, np.float64)
@@ -36,9 +36,9 @@ def deformation_gradients(
 
 
 def smoothness(
-    rest: Float[np.ndarray, "n 2"],
-    deformed: Float[np.ndarray, "n 2"],
-    faces: Int[np.ndarray, "f 3"],
+    rest: Float[ArrayLike, "n 2"],
+    deformed: Float[ArrayLike, "n 2"],
+    faces: Int[ArrayLike, "f 3"],
 ) -> float:
     """Sum over interior edges of the jump of the deformation gradient across the edge
     (Frobenius norm): 0 for an affine map, small for a smooth deformation, large where
@@ -50,9 +50,9 @@ def smoothness(
 
 
 def flipped_triangles(
-    rest: Float[np.ndarray, "n 2"],
-    deformed: Float[np.ndarray, "n 2"],
-    faces: Int[np.ndarray, "f 3"],
+    rest: Float[ArrayLike, "n 2"],
+    deformed: Float[ArrayLike, "n 2"],
+    faces: Int[ArrayLike, "f 3"],
 ) -> int:
     """How many triangles changed orientation."""
     faces = np.asarray(faces)

@@ -2,26 +2,23 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int
 
 from . import _coordinates as coords, _meshing as meshing, _topology as topology
 from ._checks import as_points, kind_of
-from ._control import AbstractControl, PaperControl, as_control
+from ._control import PaperControl, as_control
 from ._energy import Energy, Weights, check_weights, rigid_start, total_energy
-from ._factor import AbstractFactor, AbstractFactorMethod, as_factor_method
+from ._factor import AbstractFactor, as_factor_method
 from ._frame import Frame, bounding_frame, check_representable, frame_array
 from ._handles import Handles, check_handles, make_handles, pin
 from ._shape import Shape
-from ._skinning import (
-    AbstractSkinning,
-    BarycentricSkinning,
-    Skinning,
-    as_skinning,
-)
+from ._skinning import BarycentricSkinning, Skinning, as_skinning
 from ._solvers import AbstractSolver, FixedG
 from ._stencils import LAPLACIAN
 
@@ -230,16 +227,16 @@ class Rig(eqx.Module):
     @classmethod
     def build(
         cls,
-        shape: Shape,
-        handles,
+        shape: Any,
+        handles: Any,
         *,
-        shape_spacing: float | None = None,
-        control_spacing: float | None = None,
-        margin: float | None = None,
-        weights: Weights | None = None,
-        control: AbstractControl | str | tuple | None = None,
-        skinning: AbstractSkinning | str = "blended",
-        factor: AbstractFactorMethod | str | None = None,
+        shape_spacing: Any = None,
+        control_spacing: Any = None,
+        margin: Any = None,
+        weights: Any = None,
+        control: Any = None,
+        skinning: Any = "blended",
+        factor: Any = None,
         dtype=None,
         max_triangles: int = 400_000,
     ) -> Rig:
@@ -249,7 +246,7 @@ class Rig(eqx.Module):
         shape gets the same meshes wherever it sits and however large it is.
 
         Args:
-            shape: the shape to deform.
+            shape: the shape to deform, an `mvcjax.Shape`.
             handles: `(h, 2)` handle points, on or inside the shape; or a list of
                 handles, each an `(x, y)` point or an `mvcjax.Bone(start, end)` (a
                 segment of the shape that follows a dragged segment). The targets then
@@ -372,17 +369,17 @@ class Rig(eqx.Module):
         """Every bone's rest `(start, end)`."""
         return self.handle_positions[self.handles.bones]
 
-    def pinned_targets(self, targets: Float[Array, "h 2"]) -> Float[Array, "r 2"]:
+    def pinned_targets(self, targets: Any) -> Float[Array, "r 2"]:
         """Where each pinned control vertex (`control_mesh.handles`) goes for these
-        targets, in the user's coordinates: the rows of `C` the solvers see."""
+        `(h, 2)` targets, in the user's coordinates: the rows of `C` the solvers see."""
         return self.frame.to_world(self._pinned(self._check_targets(targets)))
 
     def _pinned(self, targets: Float[Array, "h 2"]) -> Float[Array, "r 2"]:
         """Checked targets in the user's coordinates -> pinned rows in the rig's frame."""
         return self.handles.pinned_targets(self.frame.to_local(targets))
 
-    def with_weights(self, weights: Weights) -> Rig:
-        """The same rig with other term weights.
+    def with_weights(self, weights: Any) -> Rig:
+        """The same rig with other term weights (an `mvcjax.Weights`).
 
         Recomputes the factor: with a dense `G` this is jittable and differentiable (no
         recompilation); a sparse factor is refactored on the host, outside `jit`.
@@ -408,9 +405,9 @@ class Rig(eqx.Module):
             )
         return self.frame.to_local(init)
 
-    def start(self, targets: Float[Array, "h 2"], init="rigid") -> Float[Array, "c 2"]:
-        """Starting control vertices: `"rigid"` (the rest mesh moved rigidly to fit the
-        targets), `"rest"` (the paper's), or an explicit `(c, 2)` array."""
+    def start(self, targets: Any, init: Any = "rigid") -> Float[Array, "c 2"]:
+        """Starting control vertices for `(h, 2)` targets: `"rigid"` (the rest mesh moved
+        rigidly to fit the targets), `"rest"` (the paper's), or an explicit `(c, 2)` array."""
         return self.frame.to_world(self._local_start(self._pinned(self._check_targets(targets)),
                                                      init))
 
@@ -449,10 +446,10 @@ class Rig(eqx.Module):
 
     def solve(
         self,
-        targets: Float[Array, "h 2"],
-        solver: AbstractSolver = FixedG(),
+        targets: Any,
+        solver: Any = FixedG(),
         *,
-        init="rigid",
+        init: Any = "rigid",
         return_info: bool = False,
     ):
         """Control vertices minimising the energy (6) for these handle targets.
@@ -472,12 +469,12 @@ class Rig(eqx.Module):
 
     def energy_history(
         self,
-        targets: Float[Array, "h 2"],
-        solver: AbstractSolver,
-        steps: int,
+        targets: Any,
+        solver: Any,
+        steps: Any,
         *,
-        init="rigid",
-    ) -> Float[Array, " steps+1"]:
+        init: Any = "rigid",
+    ) -> Float[Array, " {steps+1}"]:
         """The energy (6) at the start and after each of `steps` steps of `solver`.
 
         The solver's stopping criteria are ignored, so that solvers compare over the same
@@ -500,18 +497,18 @@ class Rig(eqx.Module):
                                  self._local_start(targets, init), steps)
         return history * self.frame.scale**2
 
-    def energy_at(self, control_vertices: Float[Array, "c 2"],
-                  targets: Float[Array, "h 2"]) -> Float[Array, ""]:
-        """The energy (6) of control vertices for these targets, in the user's units
-        (what `SolveInfo.energy` reports)."""
+    def energy_at(self, control_vertices: Float[ArrayLike, "c 2"],
+                  targets: Any) -> Float[Array, ""]:
+        """The energy (6) of `(c, 2)` control vertices for `(h, 2)` targets, in the user's
+        units (what `SolveInfo.energy` reports)."""
         return total_energy(self.energy, self.frame.to_local(control_vertices),
                             self._pinned(self._check_targets(targets))) * self.frame.scale**2
 
-    def skin(self, control_vertices: Float[Array, "c 2"]) -> Float[Array, "n 2"]:
-        """Shape-mesh vertices carried by the control vertices (`V_S = W V_C`)."""
+    def skin(self, control_vertices: Float[ArrayLike, "c 2"]) -> Float[Array, "n 2"]:
+        """Shape-mesh vertices `(n, 2)` carried by `(c, 2)` control vertices (`V_S = W V_C`)."""
         return self.frame.to_world(self.skinning(self.frame.to_local(control_vertices)))
 
-    def weights_at(self, points: Float[np.ndarray, "n 2"]) -> Skinning:
+    def weights_at(self, points: Any) -> Skinning:
         """Skinning weights for any rest points the control mesh covers: pixels,
         landmarks, a finer mesh. `rig.weights_at(points)(control_vertices)` carries them
         as `skin` carries the shape mesh, with the rig's skinning method.
@@ -529,13 +526,14 @@ class Rig(eqx.Module):
 
     def deform(
         self,
-        targets: Float[Array, "h 2"],
-        solver: AbstractSolver = FixedG(),
+        targets: Any,
+        solver: Any = FixedG(),
         *,
-        init="rigid",
+        init: Any = "rigid",
         return_info: bool = False,
     ):
-        """Solve, then skin: the deformed shape-mesh vertices `(n, 2)` (and the info)."""
+        """Solve, then skin: the deformed shape-mesh vertices `(n, 2)` (and the info) for
+        `(h, 2)` targets; the arguments are those of `solve`."""
         self._check_solver(solver)
         shape, info = _deform(self, self._check_targets(targets), solver, init)
         return (shape, info) if return_info else shape

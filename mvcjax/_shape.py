@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import shapely
 import shapely.ops
-from jaxtyping import Bool, Float
+from jaxtyping import Float
 
 from ._checks import as_points, kind_of
 
@@ -100,8 +100,9 @@ def _one_polygon(geometry, component) -> shapely.Polygon:
                     f"shapely {geometry.geom_type}.")
 
 
-def pixels_to_points(pixels: Float[np.ndarray, "*n 2"], rows: int) -> Float[np.ndarray, "*n 2"]:
-    """Image positions `(row, col)` to shape coordinates `(x, y)`, y up: the centre of
+def pixels_to_points(pixels: Any, rows: int) -> Float[np.ndarray, "*n 2"]:
+    """Image positions `(..., 2)` of `(row, col)` (an array or nested lists, integer or
+    fractional) to shape coordinates `(x, y)`, y up: the centre of
     pixel `(row, col)` of an image with `rows` rows is `(col, rows - 1 - row)`.
 
     This is the convention of `Shape.from_image`; fractional positions map linearly.
@@ -110,9 +111,9 @@ def pixels_to_points(pixels: Float[np.ndarray, "*n 2"], rows: int) -> Float[np.n
     return np.stack([pixels[..., 1], rows - 1 - pixels[..., 0]], axis=-1)
 
 
-def points_to_pixels(points: Float[np.ndarray, "*n 2"], rows: int) -> Float[np.ndarray, "*n 2"]:
-    """Shape coordinates `(x, y)` to image positions `(row, col)`, the inverse of
-    `pixels_to_points`."""
+def points_to_pixels(points: Any, rows: int) -> Float[np.ndarray, "*n 2"]:
+    """Shape coordinates `(..., 2)` of `(x, y)` (an array or nested lists) to image
+    positions `(row, col)`, the inverse of `pixels_to_points`."""
     points = np.asarray(points, np.float64)
     return np.stack([rows - 1 - points[..., 1], points[..., 0]], axis=-1)
 
@@ -132,7 +133,7 @@ class Shape:
     outer: Float[np.ndarray, "n 2"]
     holes: tuple[Float[np.ndarray, "m 2"], ...]
 
-    def __init__(self, outer, holes: Sequence = ()):
+    def __init__(self, outer: Any, holes: Any = ()):
         """A shape from its outer ring and holes (see `Shape.from_polygon`).
 
         Args:
@@ -191,7 +192,7 @@ class Shape:
                            for h, n in zip(holes, normalised[1:]))
 
     @classmethod
-    def from_polygon(cls, outer, holes: Sequence = (), *, component: int | None = None) -> Shape:
+    def from_polygon(cls, outer: Any, holes: Any = (), *, component: Any = None) -> Shape:
         """A shape from its outer boundary and optional holes, or from shapely.
 
         Args:
@@ -223,11 +224,11 @@ class Shape:
     @classmethod
     def from_image(
         cls,
-        mask: Bool[np.ndarray, "rows cols"],
+        mask: Any,
         *,
-        tolerance: float = 0.5,
-        component: int | None = None,
-        min_hole_area: float = 0.0,
+        tolerance: Any = 0.5,
+        component: Any = None,
+        min_hole_area: Any = 0.0,
     ) -> Shape:
         """The silhouette of a binary image as a shape, in pixel units with y up.
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Complex, Float, Int
+from jaxtyping import Array, ArrayLike, Complex, Float, Int
 
 # A polygon vertex less the mean of its two loop neighbours: `(i, previous, next)`.
 LAPLACIAN = (1.0, -0.5, -0.5)
@@ -78,7 +78,7 @@ def apply_stencils_transpose(rows: Int[Array, "m k"], coef: Float[Array, "m k"],
     return jnp.zeros(n, u.dtype).at[rows.reshape(-1)].add((coef * u[:, None]).reshape(-1))
 
 
-def length_scale(squared_length: Array, length: Array) -> Array:
+def length_scale(squared_length: Array, length: ArrayLike) -> Array:
     """The factor that turns a vector of squared length `squared_length` to length
     `length`: `length / |v|`, and 0 for a zero vector (instead of 0/0), with finite
     gradients there. The local step's one nonlinearity, shared by the energy, the

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import abc
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -89,7 +90,7 @@ class AbstractSolver(eqx.Module):
         targets: Float[Array, "h 2"],
         init: Float[Array, "n 2"],
         steps: int,
-    ) -> Float[Array, " steps+1"]:
+    ) -> Float[Array, " {steps+1}"]:
         """The energy at the start and after each of `steps` steps, stopping criteria
         ignored (for comparing solvers; `Rig.energy_history` is the public entry).
 
@@ -140,7 +141,7 @@ def honest(converged: Array, vertices: Array, energy: Array) -> Array:
     return converged & jnp.isfinite(energy) & jnp.all(jnp.isfinite(vertices))
 
 
-def check_steps(solver: AbstractSolver, steps: int) -> int:
+def check_steps(solver: AbstractSolver, steps: Any) -> int:
     """`steps` for `fixed_steps`, refused unless a whole number >= 1."""
     where = f"{type(solver).__name__}.fixed_steps({steps!r})"
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)):
