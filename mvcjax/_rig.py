@@ -148,16 +148,8 @@ def _check_mesh_size(local: Shape, shape_spacing: float, scale: float, max_trian
 
 
 def _to_local(points: np.ndarray, frame) -> np.ndarray:
-    """Points in the rig's frame, snapped to a grid of `SNAP` of the diagonal: the same
-    shape anywhere and at any scale then reaches Triangle as the same numbers (its
-    refinement turns a last-bit difference into a different mesh)."""
     centre, scale = frame
-    return np.round((points - centre) / scale / SNAP) * SNAP
-
-
-# Far below any detail a rig resolves (`RESOLUTION`, 1e-5), far above float64's
-# round-off of a shape placed up to 1e6 sizes from the origin.
-SNAP = 2.0**-32
+    return (points - centre) / scale
 
 
 def _laplacian_index(loops: list[np.ndarray]) -> np.ndarray:
