@@ -18,6 +18,7 @@ import shapely
 
 from . import _meshing as meshing, _topology as topology
 from ._checks import as_points
+from ._frame import points_to_local
 from ._handles import bone_samples, bone_samples_on
 
 
@@ -138,12 +139,12 @@ class GivenControl(AbstractControl):
         self.faces = faces.astype(np.int64)
 
     def bone_samples(self, spacing, frame):
-        vertices = (self.vertices - frame[0]) / frame[1]
+        vertices = points_to_local(self.vertices, frame)
         return lambda a, b: np.union1d([0.0, 1.0], bone_samples_on(a, b, vertices, 1e-6))
 
     def build(self, local, shape_vertices, shape_faces, shape_pinned, pinned, spacing, margin,
               frame):
-        vertices = (self.vertices - frame[0]) / frame[1]
+        vertices = points_to_local(self.vertices, frame)
         faces = meshing._counter_clockwise(vertices, self.faces)
         loops, inner = loops_and_inner(vertices, faces)
         dist = np.linalg.norm(vertices[None] - pinned[:, None], axis=2)

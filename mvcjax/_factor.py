@@ -512,8 +512,3 @@ def as_factor_method(factor) -> AbstractFactorMethod:
         "factor must be one of mvcjax.DenseG(), mvcjax.SparseLU() or mvcjax.FactorBySize() "
         f"(or the names 'dense', 'sparse', None), got {factor!r}."
     )
-
-
-def make_factor(energy: Energy, factor=None) -> AbstractFactor:
-    """The global step's factor by `factor`, any spelling `as_factor_method` takes."""
-    return as_factor_method(factor)(energy)

@@ -65,5 +65,12 @@ def check_representable(centre: np.ndarray, scale: float, dtype) -> None:
         )
 
 
+def points_to_local(points, frame: tuple[np.ndarray, float]) -> np.ndarray:
+    """`Frame.to_local` on the host, in float64, for build time: `frame` is the
+    `(centre, scale)` of `bounding_frame`."""
+    centre, scale = frame
+    return (np.asarray(points, np.float64) - centre) / scale
+
+
 def frame_array(centre: np.ndarray, scale: float, dtype) -> Frame:
     return Frame(jnp.asarray(np.asarray(centre, dtype)), jnp.asarray(np.asarray(scale, dtype)))

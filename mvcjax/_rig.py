@@ -15,7 +15,7 @@ from ._checks import as_points, kind_of
 from ._control import PaperControl, as_control
 from ._energy import Energy, Weights, check_weights, rigid_start, total_energy
 from ._factor import AbstractFactor, as_factor_method
-from ._frame import Frame, bounding_frame, check_representable, frame_array
+from ._frame import Frame, bounding_frame, check_representable, frame_array, points_to_local
 from ._handles import Handles, check_handles, make_handles, pin
 from ._shape import Shape
 from ._skinning import BarycentricSkinning, Skinning, as_skinning
@@ -145,11 +145,6 @@ def _check_mesh_size(local: Shape, shape_spacing: float, scale: float, max_trian
             f"than max_triangles={max_triangles:,}: {fix}, or raise max_triangles if that is "
             "what you want."
         )
-
-
-def _to_local(points: np.ndarray, frame) -> np.ndarray:
-    centre, scale = frame
-    return (points - centre) / scale
 
 
 def _laplacian_index(loops: list[np.ndarray]) -> np.ndarray:
@@ -289,9 +284,9 @@ class Rig(eqx.Module):
         centre, scale = bounding_frame(shape.outer)
         check_representable(centre, scale, dtype)
         frame = (centre, scale)
-        local = Shape.from_polygon(_to_local(shape.outer, frame),
-                                   [_to_local(h, frame) for h in shape.holes])
-        local_points = _to_local(points, frame)
+        local = Shape.from_polygon(points_to_local(shape.outer, frame),
+                                   [points_to_local(h, frame) for h in shape.holes])
+        local_points = points_to_local(points, frame)
         if isinstance(control, PaperControl):
             control_spacing, margin = control.spacing, control.margin
         shape_spacing, control_spacing, margin = _spacings(
@@ -509,10 +504,10 @@ class Rig(eqx.Module):
             points: `(n, 2)` rest points, in the user's coordinates.
         """
         points = as_points(points, "points", "n")
-        centre, scale = np.asarray(self.frame.centre, np.float64), float(self.frame.scale)
-        control = (np.asarray(self.control_mesh.vertices, np.float64) - centre) / scale
+        frame = (np.asarray(self.frame.centre, np.float64), float(self.frame.scale))
+        control = points_to_local(self.control_mesh.vertices, frame)
         index, weight = self.skinning.method.weights_at(
-            (points - centre) / scale, control, np.asarray(self.control_mesh.faces)
+            points_to_local(points, frame), control, np.asarray(self.control_mesh.faces)
         )
         return Skinning(_ints(index), _array(weight, self.energy.rest.dtype), self.skinning.method)
 

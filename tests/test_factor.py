@@ -9,7 +9,7 @@ import pytest
 
 import mvcjax
 from mvcjax import DenseFactor, FactorSolver, SparseFactor
-from mvcjax._factor import make_factor, sparse_operators
+from mvcjax._factor import as_factor_method, sparse_operators
 
 from conftest import directional_derivatives, drag, local_point
 
@@ -33,9 +33,9 @@ def test_sparse_and_dense_steps_agree(small_full):
 
 def test_factor_is_chosen_by_size(horse_rig, small_full):
     assert isinstance(horse_rig.factor, DenseFactor)
-    assert isinstance(make_factor(small_full.energy, None), DenseFactor)  # ~150 vertices
+    assert isinstance(as_factor_method(None)(small_full.energy), DenseFactor)  # ~150 vertices
     with pytest.raises(ValueError, match="factor must be one of"):
-        make_factor(small_full.energy, "cholesky")
+        as_factor_method("cholesky")(small_full.energy)
 
 
 def test_gradient_through_the_sparse_solve(small_full):
@@ -83,7 +83,7 @@ def test_factors_as_lineax_operators_and_solvers(small_full, kind):
     # N and N^{-1} as lineax operators: N materialises to A^T W A from the sparse
     # operators; lineax's own CG, preconditioned by N^{-1}, solves with N in one step;
     # FactorSolver solves with it directly, and differentiably.
-    factor = make_factor(small_full.energy, kind)
+    factor = as_factor_method(kind)(small_full.energy)
     normal, inverse = factor.normal_operator(), factor.normal_inverse_operator()
     assert lx.is_symmetric(normal) and lx.is_positive_semidefinite(inverse)
     n = small_full.energy.num_vertices
