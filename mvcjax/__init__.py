@@ -35,6 +35,11 @@ from ._metrics import (
     flipped_triangles as flipped_triangles,
     smoothness as smoothness,
 )
+from ._render import (
+    Renderer as Renderer,
+    checkerboard as checkerboard,
+    fit_window as fit_window,
+)
 from ._rig import ControlMesh as ControlMesh, Rig as Rig, ShapeMesh as ShapeMesh
 from ._shape import (
     Shape as Shape,

@@ -1,0 +1,550 @@
+"""Render: a (deformed) triangle mesh to pixels, textured by its rest positions.
+
+The renderer is a visibility buffer in pure JAX. Every triangle offers the pixels of its
+bounding box as candidates; a prefix sum lays all candidates of all triangles out in one
+array of a fixed length (the budget, a static size), a pixel keeps the candidate that lies on
+top (a scatter-max over the draw order), and each pixel is then shaded once from its
+triangle: barycentric coordinates, the rest position there, a bilinear lookup of the
+picture. Edges on the mesh's boundary are antialiased by coverage, a linear ramp of the
+pixel's distance to the edge, so that the picture depends smoothly on the vertices there
+too; a second layer (the top candidate under the first) shows through where the top one
+covers a pixel partly, so that a part drawn over another has clean edges.
+
+Pixel convention, shared with `Shape.from_image`: a picture of `rows x cols` pixels spans
+a window `(xmin, ymin, xmax, ymax)` of the plane, y up; pixel `(row, col)` is the square
+whose centre is `(xmin + (col + 0.5) sx, ymax - (row + 0.5) sy)` with
+`sx = (xmax - xmin) / cols`, `sy = (ymax - ymin) / rows`. The default window of a picture
+is `(-0.5, -0.5, cols - 0.5, rows - 0.5)`, where the centre of pixel `(row, col)` is
+`(col, rows - 1 - row)` (`pixels_to_points`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
+
+from ._checks import as_points, kind_of
+from ._topology import _twins
+
+# A candidate pixel is inside a triangle when its centre is no further than this outside
+# an edge (in pixels): shared edges then never leave a crack between their triangles.
+_EPS = 1e-4
+# A pixel centre within half a pixel outside a boundary edge is partly covered.
+_FRINGE = 0.5
+# Triangles offer their candidate pixels in square tiles of one of these sides: the one
+# with the fewest candidates for the rest mesh at the picture's resolution.
+_TILES = (2, 4, 8, 16)
+
+
+def _picture(image, name: str) -> np.ndarray:
+    """`(rows, cols, 4)` straight RGBA float32 in [0, 1] from a picture array."""
+    from ._image import load_image
+
+    try:
+        return load_image(image)
+    except (TypeError, ValueError) as error:
+        raise type(error)(f"{name}: {error}") from None
+
+
+def checkerboard(
+    rows: int = 256,
+    cols: int = 256,
+    cells: int = 8,
+    colours: Any = ((0.95, 0.62, 0.22), (0.36, 0.2, 0.09)),
+) -> Float[np.ndarray, "rows cols 4"]:
+    """An opaque `(rows, cols, 4)` checkerboard of `cells` squares along the longer side:
+    a texture that shows every stretch and shear of a deformation."""
+    side = max(rows, cols) / cells
+    r, c = np.mgrid[:rows, :cols]
+    odd = ((r // side + c // side) % 2).astype(bool)
+    colours = np.asarray(colours, np.float32)
+    rgb = np.where(odd[..., None], colours[1], colours[0])
+    return np.concatenate([rgb, np.ones((rows, cols, 1), np.float32)], axis=-1)
+
+
+def _window(window, name: str) -> np.ndarray:
+    w = np.asarray(window, np.float64)
+    if w.shape != (4,) or not np.all(np.isfinite(w)) or not (w[2] > w[0] and w[3] > w[1]):
+        raise ValueError(f"{name} must be (xmin, ymin, xmax, ymax) with xmin < xmax and "
+                         f"ymin < ymax, got {window!r}.")
+    return w
+
+
+def _size(size) -> tuple[int, int]:
+    if (not isinstance(size, (tuple, list)) or len(size) != 2
+            or not all(isinstance(s, (int, np.integer)) and not isinstance(s, bool)
+                       for s in size)
+            or not all(1 <= s <= 16384 for s in size)):
+        raise ValueError(f"size must be (rows, cols), two whole numbers from 1 to 16384, got "
+                         f"{size!r}.")
+    return int(size[0]), int(size[1])
+
+
+def fit_window(
+    points: Any, size: Any = None, *, margin: float = 0.05
+) -> tuple[float, float, float, float]:
+    """A window `(xmin, ymin, xmax, ymax)` that holds all `points` (`(..., 2)`: a pose, or
+    all frames of an animation), with `margin` of its size around them, widened to the
+    aspect ratio of `size = (rows, cols)` if given so that pixels stay square."""
+    p = np.asarray(points, np.float64).reshape(-1, 2)
+    p = as_points(p, "points")
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    extent = np.maximum(hi - lo, 1e-12 * max(1.0, float(np.abs(p).max())))
+    lo, hi = lo - margin * extent, hi + margin * extent
+    if size is not None:
+        rows, cols = _size(size)
+        centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+        pixel = max(half[0] / cols, half[1] / rows)
+        half = pixel * np.array([cols, rows])
+        lo, hi = centre - half, centre + half
+    return float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])
+
+
+def _to_pixels(points, window, rows: int, cols: int):
+    """Plane points to fractional `(col, row)` positions, pixel centres at integers."""
+    xmin, ymin, xmax, ymax = window[0], window[1], window[2], window[3]
+    col = (points[..., 0] - xmin) * (cols / (xmax - xmin)) - 0.5
+    row = (ymax - points[..., 1]) * (rows / (ymax - ymin)) - 0.5
+    return jnp.stack([col, row], axis=-1)
+
+
+def _bounding_boxes(tri, fringe, rows: int, cols: int):
+    """Each triangle's candidate pixels: first column and row, width and height (0 for a
+    triangle off the picture or without area)."""
+    lo = jnp.ceil(tri.min(axis=1) - fringe[:, None])
+    hi = jnp.floor(tri.max(axis=1) + fringe[:, None])
+    limit = jnp.array([cols - 1, rows - 1], tri.dtype)
+    lo = jnp.clip(lo, 0, limit)
+    hi = jnp.clip(hi, -1, limit)
+    extent = jnp.maximum(hi - lo + 1, 0)
+    ab, ac = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    area = ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0]
+    keep = jnp.all(jnp.isfinite(tri), axis=(1, 2)) & (jnp.abs(area) > 1e-12)
+    extent = jnp.where(keep[:, None], extent, 0).astype(jnp.int32)
+    return lo.astype(jnp.int32), extent
+
+
+def _edge_distances(tri):
+    """For each triangle, its three edges (ab, bc, ca) as `(normal, offset)`: the signed
+    distance `normal . x + offset` of a point to the edge's line, in pixels, positive
+    inside, whatever the triangle's orientation (a fold flips it)."""
+    start = tri
+    end = jnp.roll(tri, -1, axis=1)
+    d = end - start
+    length = jnp.sqrt(jnp.sum(d * d, axis=-1))
+    ab, ac = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    sign = jnp.sign(ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0])
+    # The left normal (-dy, dx) points inside a positively oriented triangle.
+    scale = (sign[:, None] / jnp.where(length > 0, length, 1.0))[..., None]
+    normal = jnp.stack([-d[..., 1], d[..., 0]], axis=-1) * scale
+    offset = -jnp.sum(normal * start, axis=-1)
+    return normal, offset
+
+
+class Renderer(eqx.Module):
+    """Draws a triangle mesh at any vertex positions, textured by its rest positions.
+
+    Build one with `Renderer.build` (from a rig or a mesh, a picture or a fill), then call
+    it with deformed vertices: `renderer(vertices)` is a `(rows, cols, 4)` straight RGBA
+    picture in [0, 1]. It is a pytree of arrays and static sizes: it jits (it is compiled
+    on first call), vmaps over frames (`jax.vmap(renderer)(frames)`), and differentiates
+    with respect to the vertices, the texture and the window. Numbers (vertices, window,
+    texture values) never recompile it; the picture's size and the budget do.
+
+    Attributes:
+        faces: `(f, 3)` triangles.
+        boundary: `(f, 3)` whether edge ab, bc, ca of each triangle is on the mesh's boundary.
+        texture_points: `(n, 2)` each vertex's rest position in the texture, as fractional
+            `(col, row)` pixel positions.
+        texture: `(h, w, 4)` premultiplied RGBA texture.
+        window: `(4,)` the plane's rectangle `(xmin, ymin, xmax, ymax)` the picture shows.
+        background: `(4,)` straight RGBA drawn where no triangle is.
+        rest: `(n, 2)` the rest vertices.
+        level: `(f,)` each triangle's draw level (higher on top, ties: the later triangle),
+            or None to put the triangles that moved further from rest on top, pose by pose.
+        shape: `(rows, cols)` of the pictures drawn (static).
+        budget: how many pixel tiles the triangles of one picture may cover (static).
+        tile: the side of those tiles, in pixels (static).
+        antialias: whether boundary edges are antialiased (static).
+    """
+
+    faces: Int[Array, "f 3"]
+    boundary: Bool[Array, "f 3"]
+    texture_points: Float[Array, "n 2"]
+    texture: Float[Array, "h w 4"]
+    window: Float[Array, " 4"]
+    background: Float[Array, " 4"]
+    rest: Float[Array, "n 2"]
+    level: Int[Array, " f"] | None
+    shape: tuple[int, int] = eqx.field(static=True)
+    budget: int = eqx.field(static=True)
+    tile: int = eqx.field(static=True)
+    antialias: bool = eqx.field(static=True)
+
+    @classmethod
+    def build(
+        cls,
+        mesh: Any,
+        image: Any = None,
+        *,
+        size: Any = None,
+        window: Any = None,
+        image_window: Any = None,
+        fill: Any = "checkerboard",
+        background: Any = (0.0, 0.0, 0.0, 0.0),
+        depth: Any = None,
+        antialias: bool = True,
+        budget: Any = None,
+        dtype: Any = None,
+    ) -> Renderer:
+        """A renderer for a mesh.
+
+        Args:
+            mesh: a `Rig` (its shape mesh is drawn), a `ShapeMesh`, or a pair
+                `(vertices, faces)` of `(n, 2)` rest vertices and `(f, 3)` triangles.
+            image: the picture the rest mesh lies on: an array `(rows, cols)`,
+                `(rows, cols, 3)` or `(rows, cols, 4)` (floats in [0, 1] or integers), or a
+                file path. None draws the shape filled with `fill` instead.
+            size: `(rows, cols)` of the output. Default: the picture's size when the
+                window is the picture's, else 512 pixels along the window's longer side.
+            window: the rectangle `(xmin, ymin, xmax, ymax)` of the plane to draw.
+                Default: the picture's (`image_window`), or the rest mesh's bounding box
+                with a 5% margin without a picture. `fit_window` makes one that holds a
+                whole animation. The renderer can also be called with another window.
+            image_window: the rectangle the picture covers at rest. Default
+                `(-0.5, -0.5, cols - 0.5, rows - 0.5)`: pixel `(row, col)` of the picture
+                is centred at `(col, rows - 1 - row)`, the convention of
+                `Shape.from_image`, so that a shape made from a picture lies on it.
+            fill: without a picture, `"checkerboard"` (shows stretch and shear) or a
+                colour `(r, g, b)` / `(r, g, b, a)` in [0, 1].
+            background: straight RGBA `(r, g, b, a)` in [0, 1] where nothing is drawn;
+                transparent by default.
+            depth: draw order where parts overlap: `(n,)` a depth per rest vertex, larger
+                on top (a triangle's depth is its vertices' mean; `depth_from_handles`
+                spreads a depth per handle over a rig's mesh). Default: in each pose, the
+                triangles that moved further from rest lie on top, so that a dragged part
+                passes over the rest of the shape.
+            antialias: smooth (and differentiable) boundary edges; False draws hard edges
+                at about half the cost.
+            budget: how many square pixel tiles the triangles' bounding boxes may cover
+                in one picture (a static size; the tile's side is picked for the mesh). Default: twice the rest mesh's in this window
+                plus the tiles of the whole picture. A pose that needs more raises an error
+                saying so.
+            dtype: float dtype of the computation; default the mesh's.
+        """
+        vertices, faces = _mesh_of(mesh)
+        if dtype is None:
+            dtype = vertices.dtype if vertices.dtype in (np.float32, np.float64) else np.float32
+        dtype = np.dtype(dtype)
+        if image is not None:
+            picture = _picture(image, "image")
+            h, w = picture.shape[:2]
+            image_window = (_window(image_window, "image_window") if image_window is not None
+                            else np.array([-0.5, -0.5, w - 0.5, h - 0.5]))
+        else:
+            if image_window is not None:
+                raise ValueError("image_window places a picture; pass image= too, or drop it.")
+            picture, image_window = _fill(fill, vertices)
+        if window is None:
+            window = (image_window if image is not None
+                      else np.array(fit_window(vertices, size)))
+            if size is None and image is not None:
+                size = picture.shape[:2]
+        window = _window(window, "window")
+        if size is None:
+            extent = window[2:] - window[:2]
+            pixel = extent.max() / 512
+            size = tuple(int(max(1, round(e / pixel))) for e in extent[::-1])
+        rows, cols = _size(size)
+        texture_points = np.asarray(_to_pixels(vertices, image_window, *picture.shape[:2]))
+        boundary = (_twins(faces) < 0).reshape(-1, 3)
+        level = None
+        if depth is not None:
+            depth = np.asarray(depth, np.float64)
+            if depth.shape != (len(vertices),) or not np.all(np.isfinite(depth)):
+                raise ValueError(f"depth must be {len(vertices)} finite numbers, one per rest "
+                                 f"vertex of the mesh, got shape {depth.shape}.")
+            level = jnp.asarray(_levels(depth[faces].mean(axis=1)))
+        tile, rest = _tiling(vertices, faces, boundary, window, rows, cols, antialias)
+        if budget is None:
+            budget = 2 * rest + -(-rows // tile) * -(-cols // tile)
+        if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1:
+            raise ValueError(f"budget must be a whole number >= 1, got {budget!r}.")
+        premultiplied = picture.copy()
+        premultiplied[..., :3] *= picture[..., 3:]
+        background = np.asarray(background, np.float64)
+        if background.shape == (3,):
+            background = np.append(background, 1.0)
+        if background.shape != (4,) or not np.all((background >= 0) & (background <= 1)):
+            raise ValueError(f"background must be (r, g, b) or (r, g, b, a) in [0, 1], got "
+                             f"{background.tolist()}.")
+        return cls(
+            faces=jnp.asarray(faces, jnp.int32),
+            boundary=jnp.asarray(boundary),
+            texture_points=jnp.asarray(texture_points, dtype),
+            texture=jnp.asarray(premultiplied, dtype),
+            window=jnp.asarray(window, dtype),
+            background=jnp.asarray(background, dtype),
+            rest=jnp.asarray(vertices, dtype),
+            level=level,
+            shape=(rows, cols),
+            budget=int(budget),
+            tile=tile,
+            antialias=bool(antialias),
+        )
+
+    def __call__(
+        self, vertices: Float[ArrayLike, "n 2"], window: Float[ArrayLike, " 4"] | None = None
+    ) -> Float[Array, "rows cols 4"]:
+        """The picture of the mesh at `vertices`.
+
+        Args:
+            vertices: `(n, 2)` vertex positions (deformed), in the plane's coordinates.
+            window: `(4,)` another rectangle `(xmin, ymin, xmax, ymax)` to draw (numbers:
+                no recompilation); default the renderer's.
+
+        Returns:
+            `(rows, cols, 4)` straight (not premultiplied) RGBA in [0, 1].
+        """
+        n = self.texture_points.shape[0]
+        if not hasattr(vertices, "shape") or tuple(vertices.shape) != (n, 2):
+            shape = getattr(vertices, "shape", None)
+            raise ValueError(f"vertices must be ({n}, 2), one (x, y) per vertex of the mesh "
+                             f"the renderer was built for, got shape {shape}; for many frames "
+                             "use jax.vmap(renderer)(frames).")
+        return _draw(self, jnp.asarray(vertices, self.texture.dtype),
+                     self.window if window is None else jnp.asarray(window, self.texture.dtype))
+
+
+def _mesh_of(mesh) -> tuple[np.ndarray, np.ndarray]:
+    from ._rig import Rig, ShapeMesh
+
+    if isinstance(mesh, Rig):
+        mesh = mesh.shape_mesh
+    if isinstance(mesh, ShapeMesh):
+        return np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    if isinstance(mesh, (tuple, list)) and len(mesh) == 2:
+        vertices = as_points(mesh[0], "mesh vertices")
+        faces = np.asarray(mesh[1])
+        if faces.dtype.kind not in "iu" or faces.ndim != 2 or faces.shape[1] != 3:
+            raise ValueError(f"mesh faces must be (f, 3) integer vertex indices, got "
+                             f"{kind_of(faces)} of shape {faces.shape}.")
+        if len(faces) == 0 or faces.min() < 0 or faces.max() >= len(vertices):
+            raise ValueError(f"mesh faces must index the {len(vertices)} vertices (0 to "
+                             f"{len(vertices) - 1}) and be at least one triangle.")
+        return np.asarray(mesh[0]), faces.astype(np.int64)
+    raise TypeError(f"mesh must be a Rig, a ShapeMesh or a pair (vertices, faces), got "
+                    f"{type(mesh).__name__}.")
+
+
+def _fill(fill, vertices):
+    """A texture and its window for a shape drawn without a picture."""
+    window = np.array(fit_window(vertices, margin=0.0))
+    if isinstance(fill, str) and fill == "checkerboard":
+        return checkerboard(), window
+    colour = np.asarray(fill, np.float32) if not isinstance(fill, str) else None
+    if colour is None or colour.shape not in ((3,), (4,)) or not np.all(
+            (colour >= 0) & (colour <= 1)):
+        raise ValueError(f"fill must be 'checkerboard' or a colour (r, g, b) or (r, g, b, a) "
+                         f"in [0, 1], got {fill!r}.")
+    return np.append(colour, 1.0)[:4].reshape(1, 1, 4).astype(np.float32), window
+
+
+def _levels(values: np.ndarray) -> np.ndarray:
+    """Integer draw levels in `[0, _levels_for(f))`, in the order of `values` (equal
+    values share a level)."""
+    distinct, inverse = np.unique(values, return_inverse=True)
+    top = _level_count(len(values))
+    return (inverse.astype(np.int64) * top // max(len(distinct), 1)).astype(np.int32)
+
+
+def _level_count(faces: int) -> int:
+    # A pixel's key is level * faces + face, in an int32.
+    return (2**31 - 1) // faces
+
+
+def _tiles(tri, fringe, rows: int, cols: int, tile: int):
+    """The `tile x tile` pixel tiles that cover each triangle's bounding box: first
+    pixel `(col, row)`, last pixel, and the number of tiles across and down."""
+    first, extent = _bounding_boxes(tri, fringe, rows, cols)
+    across = (extent + tile - 1) // tile
+    return first, first + extent - 1, across
+
+
+def _tiling(vertices, faces, boundary, window, rows, cols, antialias) -> tuple[int, int]:
+    """The tile side with the fewest candidate pixels for the rest mesh, and how many
+    tiles that side needs."""
+    tri = _to_pixels(jnp.asarray(vertices[faces], jnp.float32), window, rows, cols)
+    fringe = _fringes(jnp.asarray(boundary), antialias).max(axis=1)
+    counts = {}
+    for tile in _TILES:
+        _, _, across = _tiles(tri, fringe, rows, cols, tile)
+        counts[tile] = int(np.sum(np.prod(np.asarray(across, np.int64), axis=1)))
+    tile = min(_TILES, key=lambda t: counts[t] * t * t)
+    return tile, counts[tile]
+
+
+def _fringes(boundary, antialias: bool):
+    """How far (in pixels) outside each edge a pixel centre still counts as a candidate."""
+    if antialias:
+        return jnp.where(boundary, _FRINGE + _EPS, _EPS)
+    return jnp.full(boundary.shape, _EPS)
+
+
+def _keys(renderer: Renderer, vertices):
+    """Each triangle's key: larger keys are drawn on top; `key % faces` is the triangle."""
+    count = renderer.faces.shape[0]
+    level = renderer.level
+    if level is None:
+        moved = jnp.sum((vertices - renderer.rest) ** 2, axis=-1)[renderer.faces].sum(axis=1)
+        moved = jax.lax.stop_gradient(moved)
+        top = _level_count(count) - 1
+        scale = jnp.where(moved.max() > 0, top / moved.max(), 0.0)
+        level = jnp.clip(jnp.floor(moved * scale), 0, top).astype(jnp.int32)
+    return level * count + jnp.arange(count, dtype=jnp.int32)
+
+
+def _face_table(tri, texture_tri, boundary):
+    """Per triangle, what shading a pixel needs: the affine map from a pixel centre to its
+    texture position (2 x 3), and the distances to its boundary edges (3 x 3: normal and
+    offset; a far offset for inner edges, which must not fade)."""
+    normal, offset = _edge_distances(tri)
+    # Barycentric weight of vertex k: distance to the opposite edge over k's height.
+    opposite = jnp.array([1, 2, 0])
+    n_opp, o_opp = normal[:, opposite], offset[:, opposite]
+    height = jnp.sum(n_opp * tri, axis=-1) + o_opp
+    height = jnp.where(jnp.abs(height) > 1e-12, height, 1.0)
+    linear = n_opp / height[..., None]  # (f, 3, 2): weight_k = linear_k . p + constant_k
+    constant = o_opp / height
+    uv_linear = jnp.einsum("fkt,fkd->ftd", texture_tri, linear)  # (f, 2 texture, 2 pixel)
+    uv_constant = jnp.einsum("fkt,fk->ft", texture_tri, constant)
+    far = jnp.asarray(1e6, tri.dtype)
+    edge_normal = jnp.where(boundary[..., None], normal, 0.0)
+    edge_offset = jnp.where(boundary, offset, far)
+    return jnp.concatenate([uv_linear.reshape(-1, 4), uv_constant,
+                            edge_normal.reshape(-1, 6), edge_offset], axis=1)
+
+
+@eqx.filter_jit
+def _draw(renderer: Renderer, vertices, window):
+    rows, cols = renderer.shape
+    count = renderer.faces.shape[0]
+    faces = renderer.faces
+    points = _to_pixels(vertices, window, rows, cols)
+    tri = points[faces]
+    # Which triangle a pixel shows is decided without gradients; they flow through the
+    # shading (texture position and edge coverage) below.
+    fixed = jax.lax.stop_gradient(tri)
+    fringe = _fringes(renderer.boundary, renderer.antialias).astype(tri.dtype)
+    tile = renderer.tile
+    first, last, across = _tiles(fixed, fringe.max(axis=1), rows, cols, tile)
+    tiles = across[:, 0] * across[:, 1]
+    total = jnp.sum(tiles.astype(jnp.float32))
+    vertices = eqx.error_if(
+        vertices, total > renderer.budget,
+        "the pose needs more pixel tiles than the renderer's budget (a zoomed-in window or "
+        "a strongly stretched mesh); build the Renderer with a larger budget= or draw a "
+        "wider window.",
+    )
+    # Tile slot -> triangle: a prefix sum over the triangles' tile counts.
+    end = jnp.cumsum(tiles)
+    start = end - tiles
+    slot = jnp.arange(renderer.budget, dtype=jnp.int32)
+    marks = jnp.zeros(renderer.budget, jnp.int32).at[start].add(1, mode="drop")
+    face = jnp.clip(jnp.cumsum(marks) - 1, 0, count - 1)
+    local = slot - start[face]
+    width = jnp.maximum(across[face, 0], 1)
+    offsets = jnp.arange(tile, dtype=jnp.int32)
+    col = (first[face, 0] + (local % width) * tile)[:, None, None] + offsets[None, None, :]
+    row = (first[face, 1] + (local // width) * tile)[:, None, None] + offsets[None, :, None]
+    valid = ((slot < end[-1])[:, None, None] & (col <= last[face, 0, None, None])
+             & (row <= last[face, 1, None, None]))
+    pixel = jnp.where(valid, row * cols + col, rows * cols)
+
+    normal, offset = _edge_distances(fixed)
+    n, o, fr = normal[face], offset[face], fringe[face]  # per tile
+    x, y = col.astype(tri.dtype), row.astype(tri.dtype)
+    distance = [n[:, k, 0, None, None] * x + n[:, k, 1, None, None] * y
+                + o[:, k, None, None] for k in range(3)]
+    inside = valid
+    for k in range(3):
+        inside = inside & (distance[k] >= -fr[:, k, None, None])
+    keys = _keys(renderer, vertices)
+    key = jnp.where(inside, keys[face][:, None, None], -1)
+    front = jnp.full(rows * cols + 1, -1, jnp.int32).at[pixel].max(key, mode="drop")
+    layers = [front[:-1]]
+    if renderer.antialias:
+        # Under a partly covering front triangle (its edge over another part) the top
+        # triangle beneath it shows.
+        solid = valid & (key < front[pixel])
+        for k in range(3):
+            solid = solid & (distance[k] >= -_EPS)
+        back = jnp.full(rows * cols + 1, -1, jnp.int32).at[pixel].max(
+            jnp.where(solid, key, -1), mode="drop")
+        layers.append(back[:-1])
+
+    table = _face_table(tri, renderer.texture_points[faces], renderer.boundary)
+    grid_col = jnp.tile(jnp.arange(cols, dtype=tri.dtype), rows)
+    grid_row = jnp.repeat(jnp.arange(rows, dtype=tri.dtype), cols)
+    colour = jnp.broadcast_to(_premultiply(renderer.background), (rows * cols, 4))
+    for layer in layers[::-1]:
+        colour = _shade(renderer, table.T[:, layer % count], layer >= 0, grid_col, grid_row,
+                        colour)
+    alpha = colour[:, 3:]
+    straight = jnp.where(jnp.arange(4) < 3, colour / jnp.where(alpha > 0, alpha, 1.0), colour)
+    return jnp.clip(straight, 0.0, 1.0).reshape(rows, cols, 4)
+
+
+def _premultiply(rgba):
+    return jnp.concatenate([rgba[:3] * rgba[3], rgba[3:]])
+
+
+def _shade(renderer: Renderer, table, drawn, x, y, under):
+    """Pixels drawn by the triangles whose `table` columns are given (`(15, p)`), over the
+    premultiplied `under` (`(p, 4)`), where `drawn`."""
+    u = table[0] * x + table[1] * y + table[4]
+    v = table[2] * x + table[3] * y + table[5]
+    if renderer.antialias:
+        edge = [table[6 + 2 * k] * x + table[7 + 2 * k] * y + table[12 + k] for k in range(3)]
+        coverage = jnp.clip(0.5 + jnp.minimum(jnp.minimum(edge[0], edge[1]), edge[2]), 0.0, 1.0)
+    else:
+        coverage = jnp.ones_like(u)
+    coverage = jnp.where(drawn, coverage, 0.0)
+    u, v, coverage = _materialise((u, v, coverage))
+    colour = _bilinear(renderer.texture, u, v)
+    coverage = coverage[:, None]
+    return _materialise(coverage * colour + (1.0 - coverage) * under)
+
+
+def _materialise(tree):
+    """`tree`, computed once into memory. XLA's CPU fusion would otherwise recompute a
+    table lookup and its arithmetic inside every consumer (each texel and channel: 4x to
+    8x the work), and it drops `optimization_barrier`s; a conditional it must keep (its
+    predicate is unknown at compile time, and true unless the input holds a NaN) is a
+    boundary it cannot fuse across."""
+    first = jax.tree.leaves(tree)[0]
+    keep = jnp.isfinite(jax.lax.stop_gradient(first.reshape(-1)[0]))
+    return jax.lax.cond(keep, lambda t: t, lambda t: jax.tree.map(jnp.zeros_like, t), tree)
+
+
+def _bilinear(texture, u, v):
+    """Texture values `(p, 4)` at fractional `(col, row) = (u, v)` positions, clamped at the
+    border."""
+    h, w = texture.shape[:2]
+    flat = texture.reshape(h * w, -1)
+    c = jnp.clip(u, 0.0, w - 1.0)
+    r = jnp.clip(v, 0.0, h - 1.0)
+    c0 = jnp.clip(jnp.floor(c), 0, max(w - 2, 0)).astype(jnp.int32)
+    r0 = jnp.clip(jnp.floor(r), 0, max(h - 2, 0)).astype(jnp.int32)
+    dc = 1 if w > 1 else 0
+    dr = w if h > 1 else 0
+    fc, fr = (c - c0)[:, None], (r - r0)[:, None]
+    at = r0 * w + c0
+    top = flat[at] * (1 - fc) + flat[at + dc] * fc
+    bottom = flat[at + dr] * (1 - fc) + flat[at + dr + dc] * fc
+    return top * (1 - fr) + bottom * fr
