@@ -30,6 +30,7 @@ from ._factor import (
 )
 from ._frames import deform_frames as deform_frames
 from ._handles import Bone as Bone, Handles as Handles
+from ._image import image_mask as image_mask, load_image as load_image
 from ._metrics import (
     difference as difference,
     flipped_triangles as flipped_triangles,

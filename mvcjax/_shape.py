@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 from typing import Any
 
@@ -100,12 +101,21 @@ def _one_polygon(geometry, component) -> shapely.Polygon:
                     f"shapely {geometry.geom_type}.")
 
 
+def _is_default(value, default) -> bool:
+    if value is default:
+        return True
+    # A number equal to the default (0.5 given as 0.5, 1/2 or np.float32(0.5)) is the default.
+    return (default is not None and not isinstance(value, bool)
+            and isinstance(value, (int, float, np.integer, np.floating)) and value == default)
+
+
 def pixels_to_points(pixels: Any, rows: int) -> Float[np.ndarray, "*n 2"]:
     """Image positions `(..., 2)` of `(row, col)` (an array or nested lists, integer or
     fractional) to shape coordinates `(x, y)`, y up: the centre of
     pixel `(row, col)` of an image with `rows` rows is `(col, rows - 1 - row)`.
 
-    This is the convention of `Shape.from_image`; fractional positions map linearly.
+    This is the convention of `Shape.from_image` (row 0 is the top of the picture, as
+    `load_image` returns it); fractional positions map linearly.
     """
     pixels = np.asarray(pixels, np.float64)
     return np.stack([pixels[..., 1], rows - 1 - pixels[..., 0]], axis=-1)
@@ -224,24 +234,34 @@ class Shape:
     @classmethod
     def from_image(
         cls,
-        mask: Any,
+        image: Any,
         *,
         tolerance: Any = 0.5,
         component: Any = None,
         min_hole_area: Any = 0.0,
+        alpha_threshold: Any = 0.5,
+        background: Any = None,
+        key_tolerance: Any = 0.1,
     ) -> Shape:
-        """The silhouette of a binary image as a shape, in pixel units with y up.
+        """The silhouette of a mask or a picture as a shape, in pixel units with y up.
 
-        Pixel `(row, col)` has its centre at `(x, y) = (col, rows - 1 - row)`
-        (`pixels_to_points`, and back with `points_to_pixels`). The
-        outline runs through the half-pixel boundary between foreground and
-        background (scikit-image's marching squares), so a silhouette touching the
-        image border is closed along the border.
+        The picture's pixel grid and the shape's coordinates agree exactly: the centre of
+        pixel `(row, col)` of an image with `rows` rows is at `(x, y) = (col, rows - 1 -
+        row)`, so one pixel is one unit, and the outline runs along the half-pixel
+        boundary between foreground and background pixels (scikit-image's marching
+        squares, which cuts each corner across its diagonal). `pixels_to_points` and
+        `points_to_pixels` map positions in the picture and on the shape onto each other.
+        A silhouette touching the image border is closed along the border.
 
         Args:
-            mask: 2D array of booleans, integers or floats, foreground where true (or
-                non-zero). Other dtypes (complex, strings, objects) are refused with a
-                `TypeError`, NaN or infinite pixels with a `ValueError`.
+            image: a 2D mask, foreground where true (or non-zero): an array of booleans,
+                integers or floats; other dtypes (complex, strings, objects) are refused
+                with a `TypeError`, NaN or infinite pixels with a `ValueError`. Or a
+                picture: a `(rows, cols, 3)` RGB or `(rows, cols, 4)` RGBA array, a path
+                to an image file or a Pillow image, read by `load_image` and made a mask
+                by `image_mask` (foreground where alpha is above `alpha_threshold`, and,
+                with `background`, where the colour is not the background's). A 2D array
+                is always a mask: for a grey picture, pass `load_image(grey)`.
             tolerance: maximal distance, in pixels, between the simplified outline and
                 the pixel contour (Douglas-Peucker, `skimage.measure.approximate_polygon`).
                 It is lowered automatically where simplification would make the outline
@@ -252,12 +272,45 @@ class Shape:
                 `int`, not a bool or float.
             min_hole_area: holes of smaller area, in square pixels, are filled. Must be a
                 finite number >= 0.
+            alpha_threshold: pictures only: alpha above which a pixel is foreground, from
+                0 to below 1.
+            background: pictures only: the colour to key out, RGB as 0..255 integers or
+                0..1 floats, a colour name or `"#rrggbb"`, or `"corner"` for the colour of
+                the top-left pixel. Required for an opaque picture (RGB, or alpha 1
+                everywhere).
+            key_tolerance: pictures only: largest difference, in 0..1 units and any of
+                red, green or blue, at which a colour still counts as the background.
+
+        The picture-only options are refused with a mask, unless left at their defaults.
         """
         from skimage import measure
 
-        mask = np.asarray(mask)
+        from ._image import _is_pil_image, image_mask
+
+        picture = isinstance(image, (str, os.PathLike)) or _is_pil_image(image)
+        if not picture:
+            image = np.asarray(image)
+            picture = image.ndim == 3 and image.dtype.kind != "b"
+            if image.ndim == 3 and image.dtype.kind == "b":
+                raise ValueError(f"mask must be a 2D image, got booleans of shape {image.shape}; "
+                                 "a picture holds numbers, (rows, cols, 3) RGB or (rows, cols, "
+                                 "4) RGBA.")
+        if picture:
+            mask = image_mask(image, alpha_threshold=alpha_threshold, background=background,
+                              key_tolerance=key_tolerance)
+        else:
+            given = [f"{name}={value!r}" for name, value, default in [
+                ("alpha_threshold", alpha_threshold, 0.5), ("background", background, None),
+                ("key_tolerance", key_tolerance, 0.1)] if not _is_default(value, default)]
+            if given:
+                them, apply = ("them", "apply") if len(given) > 1 else ("it", "applies")
+                raise ValueError(f"{', '.join(given)} only {apply} to a picture (RGB or RGBA), "
+                                 "but image is a 2D mask, foreground where true; drop "
+                                 f"{them}, or pass the picture itself.")
+            mask = image
         if mask.ndim != 2:
-            raise ValueError(f"mask must be a 2D image, got an array of shape {mask.shape}.")
+            raise ValueError(f"mask must be a 2D image, or a picture (rows, cols, 3) RGB or "
+                             f"(rows, cols, 4) RGBA, got an array of shape {mask.shape}.")
         if mask.dtype.kind not in "biuf":
             raise TypeError(f"mask must be a boolean or numeric image, got {kind_of(mask)}; "
                             "pass e.g. image > threshold.")

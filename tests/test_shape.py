@@ -301,3 +301,91 @@ def test_the_pixel_convention_is_code():
     pixels = rng.uniform(-3, 10, (50, 2))
     np.testing.assert_allclose(mvcjax.points_to_pixels(mvcjax.pixels_to_points(pixels, 7), 7),
                                pixels)
+
+
+def drawn_disc(rows=40, cols=50, centre=(18, 22), radius=12):
+    r, c = np.mgrid[:rows, :cols]
+    return (r - centre[0]) ** 2 + (c - centre[1]) ** 2 <= radius**2
+
+
+def test_from_image_takes_rgba_on_the_pixel_grid():
+    mask = drawn_disc()
+    rows = mask.shape[0]
+    rgba = np.zeros(mask.shape + (4,), np.uint8)
+    rgba[mask] = [200, 60, 20, 255]
+    shape = Shape.from_image(rgba, tolerance=0)
+    # Every pixel centre is inside the outline exactly where the pixel is foreground.
+    r, c = np.mgrid[:rows, : mask.shape[1]]
+    centres = mvcjax.pixels_to_points(np.stack([r, c], axis=-1), rows)
+    inside = shapely.contains_xy(shape.polygon, centres[..., 0], centres[..., 1])
+    np.testing.assert_array_equal(inside, mask)
+    # Marching squares cuts an eighth of a pixel at each corner of the pixel outline.
+    assert abs(shape.area - mask.sum()) <= 0.25 * shape.polygon.length
+    rs, cs = np.nonzero(mask)
+    lo = mvcjax.pixels_to_points([rs.max(), cs.min()], rows) - 0.5
+    hi = mvcjax.pixels_to_points([rs.min(), cs.max()], rows) + 0.5
+    assert shape.bounds == (*lo, *hi)
+    simplified = Shape.from_image(rgba)
+    assert simplified.area == pytest.approx(mask.sum(), rel=0.02)
+
+
+def test_pictures_give_the_shape_of_their_mask(tmp_path):
+    from PIL import Image
+
+    mask = drawn_disc()
+    mask[15:20, 20:24] = False  # a hole
+    expected = Shape.from_image(mask)
+    white = np.where(mask[..., None], [30, 30, 160], [255, 255, 255]).astype(np.uint8)
+    rgba = np.dstack([white, np.where(mask, 255, 0).astype(np.uint8)])
+    Image.fromarray(rgba).save(tmp_path / "shape.png")
+    Image.fromarray(np.where(mask, 0, 255).astype(np.uint8)).save(tmp_path / "grey.png")
+    Image.fromarray(white).convert("P", palette=Image.Palette.ADAPTIVE, colors=2).save(
+        tmp_path / "palette.png")
+    for shape in [
+        Shape.from_image(white, background=(255, 255, 255)),
+        Shape.from_image(white / 255.0, background=(1.0, 1.0, 1.0)),
+        Shape.from_image(white, background="corner"),
+        Shape.from_image(rgba),
+        Shape.from_image(rgba / 255.0),
+        Shape.from_image(tmp_path / "shape.png"),
+        Shape.from_image(str(tmp_path / "grey.png"), background="white"),
+        Shape.from_image(tmp_path / "palette.png", background="corner"),
+        Shape.from_image(Image.fromarray(rgba)),
+        Shape.from_image(mvcjax.load_image(np.where(mask, 0, 255).astype(np.uint8)),
+                         background="white"),
+    ]:
+        for ring, ring_expected in zip(shape.rings, expected.rings, strict=True):
+            np.testing.assert_array_equal(ring, ring_expected)
+
+
+def test_a_sample_silhouette_as_a_keyed_picture():
+    # scikit-image's horse, dark on white, as an RGB picture: the same shape as the mask.
+    from skimage import data
+
+    from mvcjax import datasets
+
+    horse = data.horse()
+    picture = np.where(horse[..., None], 255, 0).astype(np.uint8).repeat(3, axis=2)
+    shape = Shape.from_image(picture, background=(255, 255, 255), tolerance=1.0,
+                             min_hole_area=10.0)
+    for ring, expected in zip(shape.rings, datasets.horse().rings, strict=True):
+        np.testing.assert_array_equal(ring, expected)
+
+
+def test_picture_options_with_a_mask_are_refused():
+    mask = drawn_disc()
+    for options in [{"background": "white"}, {"alpha_threshold": 0.2}, {"key_tolerance": 0.3}]:
+        with pytest.raises(ValueError, match=f"{next(iter(options))}=.*only applies to a "
+                                             "picture.*2D mask"):
+            Shape.from_image(mask, **options)
+    # At their defaults they are harmless.
+    assert Shape.from_image(mask, alpha_threshold=0.5, key_tolerance=0.1).area == \
+        Shape.from_image(mask).area
+    with pytest.raises(ValueError, match=r"2D image.*\(4, 5, 6, 3\)"):
+        Shape.from_image(np.zeros((4, 5, 6, 3)))
+    with pytest.raises(ValueError, match="opaque.*pass background="):
+        Shape.from_image(np.zeros((4, 5, 3), np.uint8))
+    with pytest.raises(ValueError, match="2D image.*booleans"):
+        Shape.from_image(np.zeros((4, 5, 4), bool))
+    with pytest.raises(FileNotFoundError, match="missing.png"):
+        Shape.from_image("missing.png")
