@@ -36,6 +36,9 @@ from ._topology import _twins
 _EPS = 1e-4
 # A pixel centre within half a pixel outside a boundary edge is partly covered.
 _FRINGE = 0.5
+# Coverage steps in a candidate's key, and the draw levels of the default order.
+_COVERAGE_BITS = 6
+_MOVED_LEVELS = 16
 # Triangles offer their candidate pixels in square tiles of one of these sides: the one
 # with the fewest candidates for the rest mesh at the picture's resolution.
 _TILES = (2, 4, 8, 16)
@@ -136,7 +139,9 @@ def _edge_distances(tri):
     start = tri
     end = jnp.roll(tri, -1, axis=1)
     d = end - start
-    length = jnp.sqrt(jnp.sum(d * d, axis=-1))
+    squared = jnp.sum(d * d, axis=-1)
+    # A collapsed edge has no direction: its normal is zero, and its gradient finite.
+    length = jnp.where(squared > 0, jnp.sqrt(jnp.where(squared > 0, squared, 1.0)), 0.0)
     ab, ac = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
     sign = jnp.sign(ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0])
     # The left normal (-dy, dx) points inside a positively oriented triangle.
@@ -227,12 +232,12 @@ class Renderer(eqx.Module):
             depth: draw order where parts overlap: `(n,)` a depth per rest vertex, larger
                 on top (a triangle's depth is its vertices' mean; `depth_from_handles`
                 spreads a depth per handle over a rig's mesh). Default: in each pose, the
-                triangles that moved further from rest lie on top, so that a dragged part
-                passes over the rest of the shape.
+                triangles that moved further from rest lie on top (in 16 steps of the
+                largest move), so that a dragged part passes over the rest of the shape.
             antialias: smooth (and differentiable) boundary edges; False draws hard edges
                 at about half the cost.
             budget: how many square pixel tiles the triangles' bounding boxes may cover
-                in one picture (a static size; the tile's side is picked for the mesh). Default: twice the rest mesh's in this window
+                in one picture (a static size; the tile's side is picked for the mesh). Default: three times the rest mesh's in this window
                 plus the tiles of the whole picture. A pose that needs more raises an error
                 saying so.
             dtype: float dtype of the computation; default the mesh's.
@@ -272,7 +277,7 @@ class Renderer(eqx.Module):
             level = jnp.asarray(_levels(depth[faces].mean(axis=1)))
         tile, rest = _tiling(vertices, faces, boundary, window, rows, cols, antialias)
         if budget is None:
-            budget = 2 * rest + -(-rows // tile) * -(-cols // tile)
+            budget = 3 * rest + -(-rows // tile) * -(-cols // tile)
         if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1:
             raise ValueError(f"budget must be a whole number >= 1, got {budget!r}.")
         premultiplied = picture.copy()
@@ -299,7 +304,7 @@ class Renderer(eqx.Module):
         )
 
     def __call__(
-        self, vertices: Float[ArrayLike, "n 2"], window: Float[ArrayLike, " 4"] | None = None
+        self, vertices: Float[ArrayLike, "n 2"], window: Any = None
     ) -> Float[Array, "rows cols 4"]:
         """The picture of the mesh at `vertices`.
 
@@ -356,16 +361,18 @@ def _fill(fill, vertices):
 
 
 def _levels(values: np.ndarray) -> np.ndarray:
-    """Integer draw levels in `[0, _levels_for(f))`, in the order of `values` (equal
-    values share a level)."""
+    """Integer draw levels, in the order of `values` (equal values share a level)."""
     distinct, inverse = np.unique(values, return_inverse=True)
-    top = _level_count(len(values))
+    top = _key_layout(len(values))[1]
     return (inverse.astype(np.int64) * top // max(len(distinct), 1)).astype(np.int32)
 
 
-def _level_count(faces: int) -> int:
-    # A pixel's key is level * faces + face, in an int32.
-    return (2**31 - 1) // faces
+def _key_layout(faces: int) -> tuple[int, int]:
+    """A candidate's key packs, from the high bits down, the triangle's draw level, its
+    coverage of the pixel (in `_COVERAGE_STEPS` steps) and the triangle, in an int32: the
+    triangle's bits, and how many levels fit above."""
+    face_bits = max(int(faces - 1).bit_length(), 1)
+    return face_bits, 2 ** (31 - face_bits - _COVERAGE_BITS)
 
 
 def _tiles(tri, fringe, rows: int, cols: int, tile: int):
@@ -396,17 +403,17 @@ def _fringes(boundary, antialias: bool):
     return jnp.full(boundary.shape, _EPS)
 
 
-def _keys(renderer: Renderer, vertices):
-    """Each triangle's key: larger keys are drawn on top; `key % faces` is the triangle."""
-    count = renderer.faces.shape[0]
-    level = renderer.level
-    if level is None:
-        moved = jnp.sum((vertices - renderer.rest) ** 2, axis=-1)[renderer.faces].sum(axis=1)
-        moved = jax.lax.stop_gradient(moved)
-        top = _level_count(count) - 1
-        scale = jnp.where(moved.max() > 0, top / moved.max(), 0.0)
-        level = jnp.clip(jnp.floor(moved * scale), 0, top).astype(jnp.int32)
-    return level * count + jnp.arange(count, dtype=jnp.int32)
+def _levels_of(renderer: Renderer, vertices):
+    """Each triangle's draw level: the renderer's, or by default from how far the triangle
+    moved from rest, in a few coarse steps (neighbours then share a level, and their
+    coverage of a pixel decides between them, as within one level)."""
+    if renderer.level is not None:
+        return renderer.level
+    vertices = jax.lax.stop_gradient(vertices)
+    moved = jnp.sqrt(jnp.sum((vertices - renderer.rest) ** 2, axis=-1)[renderer.faces].sum(axis=1))
+    top = min(_MOVED_LEVELS, _key_layout(renderer.faces.shape[0])[1]) - 1
+    scale = jnp.where(moved.max() > 0, top / moved.max(), 0.0)
+    return jnp.clip(jnp.round(moved * scale), 0, top).astype(jnp.int32)
 
 
 def _face_table(tri, texture_tri, boundary):
@@ -474,8 +481,15 @@ def _draw(renderer: Renderer, vertices, window):
     inside = valid
     for k in range(3):
         inside = inside & (distance[k] >= -fr[:, k, None, None])
-    keys = _keys(renderer, vertices)
-    key = jnp.where(inside, keys[face][:, None, None], -1)
+    # Where several triangles of one level reach a pixel, the one covering it most wins:
+    # the coverage is then the same whichever of two neighbours is drawn, and continuous.
+    edge = [jnp.where(fr[:, k, None, None] > 2 * _EPS, distance[k], jnp.inf) for k in range(3)]
+    coverage = jnp.clip(0.5 + jnp.minimum(jnp.minimum(edge[0], edge[1]), edge[2]), 0.0, 1.0)
+    steps = jnp.round(coverage * (2**_COVERAGE_BITS - 1)).astype(jnp.int32)
+    face_bits, _ = _key_layout(count)
+    level = _levels_of(renderer, vertices)[face][:, None, None]
+    key = (level * 2**_COVERAGE_BITS + steps) * 2**face_bits + face[:, None, None]
+    key = jnp.where(inside, key, -1)
     front = jnp.full(rows * cols + 1, -1, jnp.int32).at[pixel].max(key, mode="drop")
     layers = [front[:-1]]
     if renderer.antialias:
@@ -493,8 +507,8 @@ def _draw(renderer: Renderer, vertices, window):
     grid_row = jnp.repeat(jnp.arange(rows, dtype=tri.dtype), cols)
     colour = jnp.broadcast_to(_premultiply(renderer.background), (rows * cols, 4))
     for layer in layers[::-1]:
-        colour = _shade(renderer, table.T[:, layer % count], layer >= 0, grid_col, grid_row,
-                        colour)
+        triangle = jnp.bitwise_and(layer, 2**face_bits - 1)
+        colour = _shade(renderer, table.T[:, triangle], layer >= 0, grid_col, grid_row, colour)
     alpha = colour[:, 3:]
     straight = jnp.where(jnp.arange(4) < 3, colour / jnp.where(alpha > 0, alpha, 1.0), colour)
     return jnp.clip(straight, 0.0, 1.0).reshape(rows, cols, 4)

@@ -1,0 +1,270 @@
+"""The renderer: pictures back at rest, exact shifts and rotations, affine warps against
+scikit-image, gradients against finite differences, folds, draw order, bad input."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from skimage import data, morphology, transform
+
+import mvcjax
+
+
+@pytest.fixture(scope="module")
+def picture():
+    """A character picture: scikit-image's horse silhouette as alpha, its astronaut photo
+    as paint (a texture with fine detail), at a third of the size."""
+    mask = transform.rescale((~data.horse()).astype(float), 0.35, order=0) > 0.5
+    paint = transform.resize(data.astronaut(), mask.shape, anti_aliasing=True)
+    return np.dstack([paint, mask]).astype(np.float64)
+
+
+@pytest.fixture(scope="module")
+def rig(picture):
+    shape = mvcjax.Shape.from_image(picture)
+    handles = [shape.closest_point(p) for p in [(20, 25), (110, 25), (115, 95), (30, 80)]]
+    return mvcjax.Rig.build(shape, handles, dtype=jnp.float64)
+
+
+@pytest.fixture(scope="module")
+def renderer(rig, picture):
+    return mvcjax.Renderer.build(rig, picture)
+
+
+def premultiplied(p):
+    p = np.asarray(p)
+    return np.concatenate([p[..., :3] * p[..., 3:], p[..., 3:]], axis=-1)
+
+
+def inside(picture, margin=2):
+    """Pixels at least `margin` pixels inside the silhouette."""
+    return morphology.erosion(picture[..., 3] > 0.5, morphology.disk(margin))
+
+
+def test_rest_pose_draws_the_picture_back(renderer, rig, picture):
+    out = np.asarray(renderer(rig.shape_mesh.vertices))
+    assert out.shape == picture.shape and np.all(np.isfinite(out))
+    # Away from the outline the picture comes back to rounding (bilinear lookups at pixel
+    # centres); along it, alpha is the mesh's antialiased coverage of the pixel.
+    assert np.abs(out - picture)[inside(picture)].max() < 1e-6
+    alpha_error = np.abs(out[..., 3] - picture[..., 3])
+    assert alpha_error.mean() < 0.01
+    assert alpha_error[~morphology.dilation(picture[..., 3] > 0.5, morphology.disk(2))].max() == 0
+
+
+def test_whole_pixel_translation_shifts_the_picture_exactly(renderer, rig):
+    rest = premultiplied(renderer(rig.shape_mesh.vertices))
+    moved = premultiplied(renderer(rig.shape_mesh.vertices + jnp.array([3.0, -2.0])))
+    # Three pixels right, two down (y is up); a pixel's shading sees the same numbers.
+    assert np.abs(moved[2:, 3:] - rest[:-2, :-3]).max() < 1e-9
+    assert np.abs(moved[:2]).max() == 0 and np.abs(moved[:, :3]).max() == 0
+
+
+def test_quarter_turn_rotates_the_picture(rig, picture):
+    rows, cols = picture.shape[:2]
+    square = max(rows, cols)
+    window = (-0.5, -0.5, square - 0.5, square - 0.5)
+    vertices = rig.shape_mesh.vertices
+    # A fixed draw order: by default the order follows how far triangles moved, which
+    # differs between the poses, and at a pixel two boundary triangles both reach, the
+    # edge's coverage is judged by the one on top.
+    r = mvcjax.Renderer.build(rig, picture, window=window, size=(square, square),
+                              depth=np.zeros(len(vertices)))
+    centre = (square - 1) / 2
+    # (x, y) -> (centre - (y - centre), x): a quarter turn counter-clockwise.
+    turned = jnp.stack([2 * centre - vertices[:, 1], vertices[:, 0]], axis=1)
+    rest, out = premultiplied(r(vertices)), premultiplied(r(turned))
+    # A counter-clockwise turn in the plane (y up) is np.rot90 of the pixel grid.
+    assert np.abs(out - np.rot90(rest)).max() < 1e-9
+
+
+def test_affine_drag_matches_scikit_image_affine_warp(rig, picture):
+    matrix = np.array([[0.9, 0.25], [-0.15, 1.05]])
+    shift = np.array([12.0, -6.0])
+    vertices = np.asarray(rig.shape_mesh.vertices) @ matrix.T + shift
+    r = mvcjax.Renderer.build(rig, picture)
+    out = premultiplied(r(vertices))
+    # scikit-image warps in (col, row) pixel coordinates, rows down: conjugate the map.
+    rows = picture.shape[0]
+    flip = np.array([[1, 0, 0], [0, -1, rows - 1], [0, 0, 1]])
+    plane = np.eye(3)
+    plane[:2, :2], plane[:2, 2] = matrix, shift
+    forward = transform.AffineTransform(flip @ plane @ flip)
+    expected = transform.warp(premultiplied(picture), forward.inverse, order=1)
+    target = inside(np.asarray(r(vertices)), margin=3)
+    assert target.sum() > 2000
+    assert np.abs(out - expected)[target].max() < 1e-6
+
+
+def test_vmap_and_jit_agree_with_single_frames_without_recompiling(renderer, rig):
+    frames = jnp.stack([rig.shape_mesh.vertices + jnp.array([s, 0.5 * s]) for s in range(3)])
+    batched = jax.vmap(renderer)(frames)
+    for frame, picture in zip(frames, batched):
+        # Premultiplied: straight colours are ill-conditioned where alpha is tiny.
+        np.testing.assert_allclose(premultiplied(renderer(frame)), premultiplied(picture),
+                                   atol=1e-10)
+    jitted = jax.jit(lambda v: renderer(v))
+    jitted(frames[0])
+    before = jitted._cache_size()
+    jitted(frames[1]), jitted(frames[2])
+    assert jitted._cache_size() == before
+
+
+def test_gradients_match_finite_differences_inside_and_across_the_edge(rig, picture):
+    # A fixed draw order: the default one follows how far triangles moved, which the
+    # finite differences' steps change.
+    r = mvcjax.Renderer.build(rig, picture, depth=np.zeros(rig.shape_mesh.vertices.shape[0]))
+    vertices = rig.shape_mesh.vertices + 0.3
+    rest = np.asarray(r(vertices))
+    alpha = rest[..., 3]
+    interior = inside(rest, margin=3) & (np.arange(alpha.size).reshape(alpha.shape) % 7 == 0)
+    edge = (alpha > 0.1) & (alpha < 0.9)
+    assert edge.sum() > 50
+    direction = jax.random.normal(jax.random.key(0), vertices.shape, vertices.dtype)
+    for where in (interior, edge):
+        weights = jnp.asarray(where[..., None] * np.linspace(1, 2, 4))
+
+        def loss(v, weights=weights):
+            return jnp.sum(premultiplied_jax(r(v)) * weights)
+
+        exact = jnp.sum(jax.grad(loss)(vertices) * direction)
+        h = 1e-6
+        approx = (loss(vertices + h * direction) - loss(vertices - h * direction)) / (2 * h)
+        assert abs(float(exact)) > 1e-3
+        assert float(exact) == pytest.approx(float(approx), rel=1e-4)
+
+
+def premultiplied_jax(p):
+    return jnp.concatenate([p[..., :3] * p[..., 3:], p[..., 3:]], axis=-1)
+
+
+def test_gradient_with_respect_to_the_picture(rig, picture):
+    def loss(texture):
+        r = mvcjax.Renderer.build(rig, picture)
+        r = eqx_replace_texture(r, texture)
+        return jnp.sum(premultiplied_jax(r(rig.shape_mesh.vertices * 0.97 + 2.0)) ** 2)
+
+    texture = mvcjax.Renderer.build(rig, picture).texture
+    # Colours only: where alpha is 1 the output's clip to [0, 1] has a kink.
+    exact, approx = directional(loss, texture, mask=np.arange(4) < 3)
+    assert abs(exact) > 1e-3
+    assert exact == pytest.approx(approx, rel=1e-6)
+
+
+def eqx_replace_texture(renderer, texture):
+    return eqx.tree_at(lambda r: r.texture, renderer, texture)
+
+
+def directional(f, x, h=1e-6, mask=True):
+    d = jax.random.normal(jax.random.key(1), x.shape, x.dtype) * mask
+    exact = float(jnp.sum(jax.grad(f)(x) * d))
+    return exact, float((f(x + h * d) - f(x - h * d)) / (2 * h))
+
+
+def test_folded_and_degenerate_meshes_give_finite_pictures_and_gradients(renderer, rig):
+    vertices = np.asarray(rig.shape_mesh.vertices).copy()
+    rng = np.random.default_rng(0)
+    folded = vertices + rng.normal(scale=1.5, size=vertices.shape)  # many flipped triangles
+    collapsed = np.zeros_like(vertices) + 40.0  # every triangle a point
+    line = np.stack([vertices[:, 0], np.full(len(vertices), 30.0)], axis=1)  # zero area
+    for v in (folded, collapsed, line):
+        out = renderer(jnp.asarray(v))
+        assert np.all(np.isfinite(out))
+        grad = jax.grad(lambda v: jnp.sum(renderer(v)))(jnp.asarray(v))
+        assert np.all(np.isfinite(grad))
+    assert np.asarray(renderer(jnp.asarray(collapsed)))[..., 3].max() == 0
+
+
+def two_squares(depth=None):
+    """Two unit squares side by side (one mesh, 8 vertices), the right one's vertices
+    movable over the left one."""
+    square = np.array([[0, 0], [10, 0], [10, 10], [0, 10]], float)
+    vertices = np.concatenate([square, square + [20, 0]])
+    faces = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    r = mvcjax.Renderer.build((vertices, faces), fill=(1.0, 0.0, 0.0), depth=depth,
+                              window=(-5, -5, 35, 15), size=(20, 40))
+    return r, vertices
+
+
+def test_draw_order_by_depth_and_by_default_the_dragged_part_on_top():
+    red, blue = np.array([1.0, 0, 0, 1]), np.array([0, 0, 1.0, 1])
+    for depth, moved_on_top in [(None, True), ([0, 0, 0, 0, 1, 1, 1, 1], True),
+                                ([1, 1, 1, 1, 0, 0, 0, 0], False)]:
+        r, vertices = two_squares(depth)
+        # Paint: left square red, right blue, through a two-texel texture.
+        texture = jnp.asarray(np.stack([red, blue])[None], r.texture.dtype)
+        points = jnp.asarray([[0.0, 0.0]] * 4 + [[1.0, 0.0]] * 4, r.texture.dtype)
+        r = eqx.tree_at(lambda q: (q.texture, q.texture_points), r, (texture, points))
+        moved = vertices.copy()
+        moved[4:] -= [15, 0]  # the right square half over the left one
+        out = np.asarray(r(jnp.asarray(moved)))
+        overlap = out[10, 12]  # pixel centre (x, y) = (7.5, 4.5), inside both squares
+        expected = blue if moved_on_top else red
+        np.testing.assert_allclose(overlap, expected, atol=1e-12)
+
+
+def test_filled_shapes_without_a_picture(rig):
+    board = mvcjax.Renderer.build(rig, size=(96, 128))
+    out = np.asarray(board(rig.shape_mesh.vertices))
+    assert out.shape == (96, 128, 4)
+    solid = out[..., 3] == 1
+    colours = np.unique(np.round(out[solid][:, :3], 3), axis=0)
+    assert solid.sum() > 1000 and len(colours) >= 2  # both squares of the checkerboard
+    flat = mvcjax.Renderer.build(rig, size=(96, 128), fill=(0.2, 0.4, 0.6))
+    out = np.asarray(flat(rig.shape_mesh.vertices))
+    drawn = out[..., 3] > 0
+    np.testing.assert_allclose(out[drawn][:, :3], np.broadcast_to([0.2, 0.4, 0.6],
+                                                                  (drawn.sum(), 3)), atol=1e-9)
+    white = mvcjax.Renderer.build(rig, size=(96, 128), fill=(0.2, 0.4, 0.6),
+                                  background=(1, 1, 1))
+    out = np.asarray(white(rig.shape_mesh.vertices))
+    np.testing.assert_allclose(out[0, 0], [1, 1, 1, 1])
+    assert np.all(out[..., 3] == 1)
+
+
+def test_window_can_change_without_recompiling(renderer, rig):
+    vertices = rig.shape_mesh.vertices
+    wide = renderer(vertices, window=(-40.0, -40.0, 200.0 - 40, 164.0 * 1.2 - 40))
+    assert np.asarray(wide)[..., 3].sum() < np.asarray(renderer(vertices))[..., 3].sum()
+
+
+def test_fit_window_holds_all_frames_with_square_pixels(rig):
+    frames = np.stack([np.asarray(rig.shape_mesh.vertices) + [s * 30.0, 0] for s in range(4)])
+    xmin, ymin, xmax, ymax = mvcjax.fit_window(frames, (100, 300), margin=0.0)
+    assert xmin <= frames[..., 0].min() and xmax >= frames[..., 0].max()
+    assert ymin <= frames[..., 1].min() and ymax >= frames[..., 1].max()
+    assert (xmax - xmin) / 300 == pytest.approx((ymax - ymin) / 100)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "error", "match"),
+    [
+        ({"image": np.zeros((10, 10, 2))}, ValueError, "image"),
+        ({"size": (0, 10)}, ValueError, "size must be"),
+        ({"window": (0, 0, -1, 1)}, ValueError, "window must be"),
+        ({"fill": "stripes"}, ValueError, "fill must be"),
+        ({"background": (2, 0, 0)}, ValueError, "background must be"),
+        ({"depth": [1.0, 2.0]}, ValueError, "depth must be"),
+        ({"image_window": (0, 0, 1, 1)}, ValueError, "image_window places a picture"),
+        ({"budget": 0}, ValueError, "budget must be"),
+    ],
+)
+def test_bad_arguments_are_refused_with_a_reason(rig, kwargs, error, match):
+    with pytest.raises(error, match=match):
+        mvcjax.Renderer.build(rig, **kwargs)
+
+
+def test_bad_vertices_and_meshes_are_refused(renderer, rig):
+    with pytest.raises(ValueError, match=r"vertices must be \(\d+, 2\)"):
+        renderer(rig.shape_mesh.vertices[:-1])
+    with pytest.raises(TypeError, match="mesh must be a Rig"):
+        mvcjax.Renderer.build("horse")
+    with pytest.raises(ValueError, match="faces must index"):
+        mvcjax.Renderer.build((np.zeros((3, 2)), np.array([[0, 1, 5]])))
+
+
+def test_a_pose_beyond_the_budget_raises(rig):
+    small = mvcjax.Renderer.build(rig, size=(64, 64), budget=4)
+    with pytest.raises(Exception, match="budget"):
+        jax.block_until_ready(small(rig.shape_mesh.vertices))
