@@ -1,6 +1,6 @@
 """mvcjax: fast, differentiable 2D shape deformation with mean value coordinates."""
 
-from . import datasets as datasets
+from . import datasets as datasets, export as export
 from ._control import (
     AbstractControl as AbstractControl,
     FullSolve as FullSolve,
