@@ -40,6 +40,7 @@ from ._render import (
     Renderer as Renderer,
     checkerboard as checkerboard,
     fit_window as fit_window,
+    render as render,
 )
 from ._rig import ControlMesh as ControlMesh, Rig as Rig, ShapeMesh as ShapeMesh
 from ._shape import (

@@ -237,9 +237,9 @@ class Renderer(eqx.Module):
             antialias: smooth (and differentiable) boundary edges; False draws hard edges
                 at about half the cost.
             budget: how many square pixel tiles the triangles' bounding boxes may cover
-                in one picture (a static size; the tile's side is picked for the mesh). Default: three times the rest mesh's in this window
-                plus the tiles of the whole picture. A pose that needs more raises an error
-                saying so.
+                in one picture (a static size; the tile's side is picked for the mesh).
+                Default: three times the rest mesh's in this window plus the tiles of the
+                whole picture. A pose that needs more raises an error saying so.
             dtype: float dtype of the computation; default the mesh's.
         """
         vertices, faces = _mesh_of(mesh)
@@ -562,3 +562,13 @@ def _bilinear(texture, u, v):
     top = flat[at] * (1 - fc) + flat[at + dc] * fc
     bottom = flat[at + dr] * (1 - fc) + flat[at + dr + dc] * fc
     return top * (1 - fr) + bottom * fr
+
+
+def render(mesh: Any, vertices: Any, image: Any = None, **options: Any) -> Float[Array,
+                                                                                  "rows cols 4"]:
+    """One picture of `mesh` at `vertices`: `Renderer.build(mesh, image, **options)(vertices)`.
+
+    For many pictures of one mesh, build the `Renderer` once and call it (or `jax.vmap`
+    it): building measures the mesh and prepares the texture.
+    """
+    return Renderer.build(mesh, image, **options)(jnp.asarray(vertices))
