@@ -24,6 +24,20 @@ def plot_mesh(vertices, faces, ax=None, *, color="0.55", linewidth=0.3, **kwargs
     return ax
 
 
+def plot_outline(rig, ax=None, vertices=None, **kwargs):
+    """The outline (every boundary loop) of the shape mesh, at rest or at `vertices`;
+    keywords go to `Axes.plot`."""
+    from ._topology import boundary_loops
+
+    ax = _axes(ax)
+    v = np.asarray(rig.shape_mesh.vertices if vertices is None else vertices)
+    kwargs = {"color": "0.3", "linewidth": 0.8, **kwargs}
+    for loop in boundary_loops(np.asarray(rig.shape_mesh.faces)):
+        closed = np.append(loop, loop[0])
+        ax.plot(v[closed, 0], v[closed, 1], **kwargs)
+    return ax
+
+
 def _draw_handles(ax, rig, pinned, targets):
     """Pinned vertices as red dots, bones as red segments through them, targets as
     crosses (a bone's two targets joined by a dashed line)."""

@@ -2,14 +2,19 @@ import subprocess
 import sys
 
 import matplotlib.image
+import PIL.Image
 
 
-def test_demo_writes_a_figure_and_reports(tmp_path):
-    out = tmp_path / "demo.png"
-    result = subprocess.run([sys.executable, "-m", "mvcjax", "demo", "--out", str(out)],
+def test_demo_writes_a_figure_an_animation_and_reports(tmp_path):
+    out, animation = tmp_path / "demo.png", tmp_path / "demo.gif"
+    result = subprocess.run([sys.executable, "-m", "mvcjax", "demo", "--out", str(out),
+                             "--animation", str(animation), "--frames", "12", "--size", "96"],
                             capture_output=True, text=True, check=True)
-    for word in ["shape mesh", "control", "preprocess", "per frame"]:
+    for word in ["building its rig ...", "compiling", "drawing", "shape mesh", "control",
+                 "preprocess", "per frame", "animation"]:
         assert word in result.stdout
+    with PIL.Image.open(animation) as gif:
+        assert gif.n_frames == 12 and gif.size == (96, 96)
     image = matplotlib.image.imread(out)
     assert image.shape[0] > 300 and image.shape[1] > 600
     assert image[..., :3].std() > 0.05  # not a blank canvas
