@@ -585,6 +585,47 @@ def _bilinear(texture, u, v):
     return top * (1 - fr) + bottom * fr
 
 
+def depth_from_handles(rig: Any, depths: Any) -> Float[np.ndarray, " n"]:
+    """A depth per shape-mesh vertex from a depth per handle, for `Renderer.build(depth=)`:
+    each vertex takes the depth of the handle nearest to it along the mesh (a geodesic
+    distance, so that an arm's vertices follow the arm's handle, not the body's one
+    across a gap).
+
+    Args:
+        rig: a `Rig`.
+        depths: a number per row of the targets (one per point handle, two per bone: its
+            start and end; a bone's pinned points take depths between the two). Larger
+            depths are drawn on top.
+    """
+    import scipy.sparse
+    import scipy.sparse.csgraph
+
+    from ._topology import edges
+
+    depths = np.asarray(depths, np.float64)
+    count = rig.handles.count
+    if depths.shape != (count,) or not np.all(np.isfinite(depths)):
+        raise ValueError(f"depths must be {count} finite numbers, one per row of the targets "
+                         f"(a point handle has one, a bone two), got shape {depths.shape}.")
+    vertices = np.asarray(rig.shape_mesh.vertices, np.float64)
+    pairs = edges(np.asarray(rig.shape_mesh.faces))
+    length = np.hypot(*(vertices[pairs[:, 0]] - vertices[pairs[:, 1]]).T)
+    n = len(vertices)
+    graph = scipy.sparse.coo_matrix((length, (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    pinned = np.asarray(rig.shape_mesh.handles)
+    _, _, nearest = scipy.sparse.csgraph.dijkstra(graph.tocsr(), directed=False,
+                                                  indices=pinned, min_only=True,
+                                                  return_predecessors=True)
+    handles = rig.handles
+    along = np.asarray(handles.along)
+    row_depth = ((1 - along) * depths[np.asarray(handles.first)]
+                 + along * depths[np.asarray(handles.second)])
+    # A vertex pinned by several rows (bones sharing a joint) keeps the last one's depth.
+    by_vertex = np.zeros(n)
+    by_vertex[pinned] = row_depth
+    return by_vertex[np.maximum(nearest, 0)]
+
+
 def render(mesh: Any, vertices: Any, image: Any = None, **options: Any) -> Float[Array,
                                                                                   "rows cols 4"]:
     """One picture of `mesh` at `vertices`: `Renderer.build(mesh, image, **options)(vertices)`.

@@ -268,3 +268,32 @@ def test_a_pose_beyond_the_budget_raises(rig):
     small = mvcjax.Renderer.build(rig, size=(64, 64), budget=4)
     with pytest.raises(Exception, match="budget"):
         jax.block_until_ready(small(rig.shape_mesh.vertices))
+
+
+def test_depth_from_handles_follows_the_mesh_to_the_nearest_handle(rig):
+    depths = np.arange(rig.handles.count, dtype=float)
+    depth = mvcjax.depth_from_handles(rig, depths)
+    assert depth.shape == (rig.shape_mesh.vertices.shape[0],)
+    # Each handle's own vertex has its depth, and every depth is one of the handles'.
+    np.testing.assert_array_equal(depth[np.asarray(rig.shape_mesh.handles)], depths)
+    assert set(np.unique(depth)) == set(depths)
+    with pytest.raises(ValueError, match="one per row of the targets"):
+        mvcjax.depth_from_handles(rig, [1.0])
+
+
+def test_depth_from_handles_puts_a_bone_on_top(rig, picture):
+    """A leg (its handle deepest) swung over the body is drawn over it, and under it
+    with the depths reversed."""
+    targets = np.asarray(rig.handle_positions).copy()
+    base = np.asarray(rig.deform(jnp.asarray(targets)))
+    front = mvcjax.Renderer.build(rig, picture, depth=mvcjax.depth_from_handles(
+        rig, [1.0, 0.0, 0.0, 0.0]))
+    back = mvcjax.Renderer.build(rig, picture, depth=mvcjax.depth_from_handles(
+        rig, [-1.0, 0.0, 0.0, 0.0]))
+    # Handle 0's part moved over the middle of the shape by translating its vertices.
+    depth = mvcjax.depth_from_handles(rig, [1.0, 0.0, 0.0, 0.0])
+    moved = base.copy()
+    moved[depth == 1.0] += [35.0, 20.0]
+    a, b = np.asarray(front(jnp.asarray(moved))), np.asarray(back(jnp.asarray(moved)))
+    differs = np.abs(a - b).max(axis=-1) > 0.05
+    assert differs.sum() > 20  # where the parts overlap, the order shows
