@@ -326,6 +326,58 @@ class Renderer(eqx.Module):
                      self.window if window is None else jnp.asarray(window, self.texture.dtype))
 
 
+    def frames(self, vertices: Any, *, chunk: Any = None, progress: Any = None) -> np.ndarray:
+        """Many pictures, ready to write: `(frames, rows, cols, 4)` straight RGBA as
+        `uint8` numpy, drawn `chunk` frames at a time by one compiled `jax.vmap`.
+
+        Args:
+            vertices: `(frames, n, 2)` vertex positions, e.g. from `deform_frames`.
+            chunk: frames per compiled batch. Default: as many as fit in about 256 MB
+                of working memory (at least 1, at most 64).
+            progress: a progress bar (tqdm): True, False, or None for one on a terminal
+                when there are more than 10 frames.
+        """
+        from ._progress import progress_bar
+
+        n = self.texture_points.shape[0]
+        frames = np.asarray(vertices)
+        if frames.ndim != 3 or frames.shape[1:] != (n, 2):
+            raise ValueError(f"vertices must be (frames, {n}, 2), a pose of the mesh's {n} "
+                             f"vertices per frame, got shape {frames.shape}.")
+        if chunk is None:
+            rows, cols = self.shape
+            # Bytes a frame holds while drawn: its candidates' indices, keys and
+            # distances, and each pixel's two layers of shading.
+            working = 40 * self.budget * self.tile**2 + 300 * rows * cols
+            chunk = int(np.clip(2**28 // working, 1, 64))
+        if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
+            raise ValueError(f"chunk must be a whole number >= 1, got {chunk!r}.")
+        draw = _draw_many(self)
+        out = np.empty((len(frames), *self.shape, 4), np.uint8)
+        with progress_bar(len(frames), progress, "rendering") as bar:
+            for begin in range(0, len(frames), chunk):
+                part = frames[begin:begin + chunk]
+                if len(part) < chunk:  # one compiled size: pad the last batch
+                    part = np.concatenate([part, np.repeat(part[-1:], chunk - len(part), 0)])
+                pictures = draw(jnp.asarray(part, self.texture.dtype))
+                done = min(chunk, len(frames) - begin)
+                out[begin:begin + done] = np.asarray(
+                    jnp.round(pictures[:done] * 255).astype(jnp.uint8))
+                bar.update(done)
+        return out
+
+
+def _draw_many(renderer: Renderer):
+    """`vertices (b, n, 2) -> pictures (b, rows, cols, 4)`, compiled for this renderer's
+    sizes (a new renderer of the same sizes reuses the compilation)."""
+    return lambda frames: _draw_batch(renderer, frames)
+
+
+@eqx.filter_jit
+def _draw_batch(renderer: Renderer, frames):
+    return jax.vmap(lambda v: _draw(renderer, v, renderer.window))(frames)
+
+
 def _mesh_of(mesh) -> tuple[np.ndarray, np.ndarray]:
     from ._rig import Rig, ShapeMesh
 

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import math
 import os
-import sys
 import warnings
 from numbers import Integral, Real
 from pathlib import Path
@@ -26,6 +25,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from ._checks import as_points, kind_of
+from ._progress import progress_bar
 from ._topology import boundary_loops
 
 __all__ = [
@@ -41,9 +41,6 @@ __all__ = [
 _ANIMATION_FORMATS = {".gif": "GIF", ".png": "PNG", ".apng": "PNG", ".webp": "WEBP",
                       ".mp4": "MP4"}
 _IMAGE_FORMATS = {".png": "PNG", ".webp": "WEBP", ".jpg": "JPEG", ".jpeg": "JPEG"}
-
-# A bar for a handful of frames only flickers: `progress=None` shows one above this.
-_PROGRESS_MIN_FRAMES = 10
 
 # The GIF palette is computed from this many frames spread over the animation, and from
 # at most this many of their opaque pixels: enough for the colours of a deforming
@@ -261,21 +258,6 @@ def write_image(path: Any, picture: Any, *, matte: Any = "white", quality: Any =
 # ---- animations -----------------------------------------------------------------------
 
 
-def _stderr_is_terminal() -> bool:
-    try:
-        return sys.stderr is not None and sys.stderr.isatty()
-    except (AttributeError, ValueError):  # replaced or closed streams
-        return False
-
-
-def _progress_bar(total: int, progress, path: Path):
-    from tqdm import tqdm
-
-    if progress is None:
-        progress = total > _PROGRESS_MIN_FRAMES and _stderr_is_terminal()
-    return tqdm(total=total, disable=not progress, desc=path.name, unit="frame", leave=False)
-
-
 def write_animation(
     path: Any,
     frames: Any,
@@ -364,7 +346,7 @@ def write_animation(
 def _write_pillow(path, kind, items, fps, loop, quality, progress) -> None:
     from PIL import Image
 
-    with _progress_bar(len(items), progress, path) as bar:
+    with progress_bar(len(items), progress, path.name) as bar:
         images = []
         for frame in items:
             images.append(Image.fromarray(np.ascontiguousarray(_to_bytes(frame, None))))
@@ -417,7 +399,7 @@ def _write_gif(path, items, fps, loop, matte_rgb, progress) -> None:
     if has_alpha:
         palette = palette + matte_bytes.tolist()  # what viewers without transparency show
 
-    with _progress_bar(len(items), progress, path) as bar:
+    with progress_bar(len(items), progress, path.name) as bar:
         images = []
         for frame in items:
             rgb, clear = opaque_colours(frame)
@@ -471,7 +453,7 @@ def _write_mp4(path, items, fps, quality, matte_rgb, progress) -> None:
             yield rgb
             bar.update()
 
-    with _progress_bar(len(items), progress, path) as bar, warnings.catch_warnings():
+    with progress_bar(len(items), progress, path.name) as bar, warnings.catch_warnings():
         # JAX warns at every os.fork once it is imported, but the fork that starts ffmpeg
         # execs at once: no JAX thread is needed in the child.
         warnings.filterwarnings("ignore", r"os\.fork\(\) was called", RuntimeWarning)

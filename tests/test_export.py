@@ -10,7 +10,7 @@ import pytest
 from PIL import Image
 
 import mvcjax
-from mvcjax import export
+from mvcjax import _progress, export
 
 COUNT, ROWS, COLS = 5, 24, 32
 
@@ -149,7 +149,7 @@ def test_progress_is_silent_unless_asked(tmp_path, capfd):
 
 
 def test_progress_by_default_on_a_terminal_for_many_frames(tmp_path, capfd, monkeypatch):
-    monkeypatch.setattr(export, "_stderr_is_terminal", lambda: True)
+    monkeypatch.setattr(_progress, "stderr_is_terminal", lambda: True)
     export.write_animation(tmp_path / "few.gif", disc_frames(10, 8, 8))
     assert capfd.readouterr().err == ""
     export.write_animation(tmp_path / "many.gif", disc_frames(11, 8, 8))

@@ -297,3 +297,19 @@ def test_depth_from_handles_puts_a_bone_on_top(rig, picture):
     a, b = np.asarray(front(jnp.asarray(moved))), np.asarray(back(jnp.asarray(moved)))
     differs = np.abs(a - b).max(axis=-1) > 0.05
     assert differs.sum() > 20  # where the parts overlap, the order shows
+
+
+def test_frames_draws_batches_as_bytes_with_silent_progress(renderer, rig, capfd):
+    frames = np.stack([np.asarray(rig.shape_mesh.vertices) + [s, 0.0] for s in range(5)])
+    pictures = renderer.frames(frames, chunk=2)
+    assert pictures.shape == (5, *renderer.shape, 4) and pictures.dtype == np.uint8
+    for frame, picture in zip(frames, pictures):
+        expected = np.round(np.asarray(renderer(jnp.asarray(frame))) * 255)
+        # Where alpha is (almost) nil the straight colour is any colour.
+        seen = expected[..., 3] >= 5
+        assert np.abs(picture.astype(float) - expected)[seen].max() <= 1
+    assert capfd.readouterr().err == ""
+    renderer.frames(frames[:2], progress=True)
+    assert "2/2" in capfd.readouterr().err
+    with pytest.raises(ValueError, match=r"vertices must be \(frames"):
+        renderer.frames(frames[0])
