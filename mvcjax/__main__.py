@@ -49,9 +49,7 @@ def _demo(args) -> int:
                                                np.asarray(rig.shape_mesh.vertices)[None]]),
                                (args.size, args.size), margin=0.03)
     renderer = mvcjax.Renderer.build(rig, size=(args.size, args.size), window=window)
-    draw = jax.jit(jax.vmap(renderer))
-    pictures = np.concatenate([np.asarray(draw(frames[i:i + 16]))
-                               for i in range(0, args.frames, 16)])
+    pictures = renderer.frames(frames)
     draw_time = time.perf_counter() - t0
     export.write_animation(args.animation, pictures, fps=24)
 
