@@ -1,10 +1,10 @@
 """Render: a (deformed) triangle mesh to pixels, textured by its rest positions.
 
 The renderer is a visibility buffer in pure JAX. Every triangle offers the pixels of its
-bounding box as candidates; a prefix sum lays all candidates of all triangles out in one
-array of a fixed length (the budget, a static size), a pixel keeps the candidate that lies on
-top (a scatter-max over the draw order), and each pixel is then shaded once from its
-triangle: barycentric coordinates, the rest position there, a bilinear lookup of the
+bounding box as candidates, in small square tiles; a prefix sum over the triangles' tile
+counts lays the tiles out one after the other, a loop takes them a chunk at a time (as
+many chunks as the pose needs), a pixel keeps the candidate that lies on top (a
+scatter-max over the draw order), and each pixel is then shaded once from its triangle: barycentric coordinates, the rest position there, a bilinear lookup of the
 picture. Edges on the mesh's boundary are antialiased by coverage, a linear ramp of the
 pixel's distance to the edge, so that the picture depends smoothly on the vertices there
 too; a second layer (the top candidate under the first) shows through where the top one
@@ -36,6 +36,8 @@ from ._topology import _twins
 _EPS = 1e-4
 # A pixel centre within half a pixel outside a boundary edge is partly covered.
 _FRINGE = 0.5
+# Tiles drawn per step of the raster's loop.
+_CHUNK = 2048
 # Coverage steps in a candidate's key, and the draw levels of the default order.
 _COVERAGE_BITS = 6
 _MOVED_LEVELS = 16
@@ -173,7 +175,7 @@ class Renderer(eqx.Module):
         level: `(f,)` each triangle's draw level (higher on top, ties: the later triangle),
             or None to put the triangles that moved further from rest on top, pose by pose.
         shape: `(rows, cols)` of the pictures drawn (static).
-        budget: how many pixel tiles the triangles of one picture may cover (static).
+        budget: the most pixel tiles the triangles of one picture may cover (static).
         tile: the side of those tiles, in pixels (static).
         antialias: whether boundary edges are antialiased (static).
     """
@@ -236,10 +238,11 @@ class Renderer(eqx.Module):
                 largest move), so that a dragged part passes over the rest of the shape.
             antialias: smooth (and differentiable) boundary edges; False draws hard edges
                 at about half the cost.
-            budget: how many square pixel tiles the triangles' bounding boxes may cover
-                in one picture (a static size; the tile's side is picked for the mesh).
-                Default: three times the rest mesh's in this window plus the tiles of the
-                whole picture. A pose that needs more raises an error saying so.
+            budget: the most square pixel tiles (the tile's side is picked for the mesh)
+                the triangles' bounding boxes may cover in one picture: the work grows
+                with them. Default: sixteen times the rest mesh's in this window plus four
+                pictures' worth. A pose that needs more (zooming far in, a part stretched
+                many times over) raises an error saying so.
             dtype: float dtype of the computation; default the mesh's.
         """
         vertices, faces = _mesh_of(mesh)
@@ -277,7 +280,7 @@ class Renderer(eqx.Module):
             level = jnp.asarray(_levels(depth[faces].mean(axis=1)))
         tile, rest = _tiling(vertices, faces, boundary, window, rows, cols, antialias)
         if budget is None:
-            budget = 3 * rest + -(-rows // tile) * -(-cols // tile)
+            budget = 16 * rest + 4 * -(-rows // tile) * -(-cols // tile)
         if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1:
             raise ValueError(f"budget must be a whole number >= 1, got {budget!r}.")
         premultiplied = picture.copy()
@@ -346,31 +349,24 @@ class Renderer(eqx.Module):
                              f"vertices per frame, got shape {frames.shape}.")
         if chunk is None:
             rows, cols = self.shape
-            # Bytes a frame holds while drawn: its candidates' indices, keys and
+            # Bytes a frame holds while drawn: a chunk of candidates' indices, keys and
             # distances, and each pixel's two layers of shading.
-            working = 40 * self.budget * self.tile**2 + 300 * rows * cols
+            working = 40 * _CHUNK * self.tile**2 + 300 * rows * cols
             chunk = int(np.clip(2**28 // working, 1, 64))
         if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
             raise ValueError(f"chunk must be a whole number >= 1, got {chunk!r}.")
-        draw = _draw_many(self)
         out = np.empty((len(frames), *self.shape, 4), np.uint8)
         with progress_bar(len(frames), progress, "rendering") as bar:
             for begin in range(0, len(frames), chunk):
                 part = frames[begin:begin + chunk]
                 if len(part) < chunk:  # one compiled size: pad the last batch
                     part = np.concatenate([part, np.repeat(part[-1:], chunk - len(part), 0)])
-                pictures = draw(jnp.asarray(part, self.texture.dtype))
+                pictures = _draw_batch(self, jnp.asarray(part, self.texture.dtype))
                 done = min(chunk, len(frames) - begin)
                 out[begin:begin + done] = np.asarray(
                     jnp.round(pictures[:done] * 255).astype(jnp.uint8))
                 bar.update(done)
         return out
-
-
-def _draw_many(renderer: Renderer):
-    """`vertices (b, n, 2) -> pictures (b, rows, cols, 4)`, compiled for this renderer's
-    sizes (a new renderer of the same sizes reuses the compilation)."""
-    return lambda frames: _draw_batch(renderer, frames)
 
 
 @eqx.filter_jit
@@ -491,97 +487,106 @@ def _face_table(tri, texture_tri, boundary):
                             edge_normal.reshape(-1, 6), edge_offset], axis=1)
 
 
-@eqx.filter_jit
-def _draw(renderer: Renderer, vertices, window):
-    rows, cols = renderer.shape
-    count = renderer.faces.shape[0]
-    faces = renderer.faces
-    points = _to_pixels(vertices, window, rows, cols)
-    tri = points[faces]
-    # Which triangle a pixel shows is decided without gradients; they flow through the
-    # shading (texture position and edge coverage) below.
-    fixed = jax.lax.stop_gradient(tri)
-    fringe = _fringes(renderer.boundary, renderer.antialias).astype(tri.dtype)
-    tile = renderer.tile
-    first, last, across = _tiles(fixed, fringe.max(axis=1), rows, cols, tile)
-    tiles = across[:, 0] * across[:, 1]
-    total = jnp.sum(tiles.astype(jnp.float32))
-    vertices = eqx.error_if(
-        vertices, total > renderer.budget,
-        "the pose needs more pixel tiles than the renderer's budget (a zoomed-in window or "
-        "a strongly stretched mesh); build the Renderer with a larger budget= or draw a "
-        "wider window.",
-    )
-    # Tile slot -> triangle: a prefix sum over the triangles' tile counts (an associative
-    # scan: XLA's CPU cumsum is several times slower at this length).
-    end = jnp.cumsum(tiles)
-    start = end - tiles
-    slot = jnp.arange(renderer.budget, dtype=jnp.int32)
-    marks = jnp.zeros(renderer.budget, jnp.int32).at[start].add(1, mode="drop")
-    face = jnp.clip(jax.lax.associative_scan(jnp.add, marks) - 1, 0, count - 1)
+def _raster(renderer: Renderer, tri, vertices, rows: int, cols: int):
+    """Which triangle each pixel shows: the key (`(level, coverage, triangle)`, -1 for
+    none) of the top candidate of each pixel, and of the top candidate that covers the
+    pixel's centre (the layer beneath a partly covering one).
 
-    # Everything a tile needs from its triangle in one row, gathered once per tile (one
-    # gather of a row costs about what one of its numbers does alone).
-    normal, offset = _edge_distances(fixed)
+    The candidates come in chunks of `_CHUNK` tiles, in a loop that stops after the last
+    tile the pose needs: the work follows the pose, not a worst case."""
+    count = renderer.faces.shape[0]
+    tile = renderer.tile
+    fringe = _fringes(renderer.boundary, renderer.antialias).astype(tri.dtype)
+    first, last, across = _tiles(tri, fringe.max(axis=1), rows, cols, tile)
+    tiles = across[:, 0] * across[:, 1]
+    end = jnp.cumsum(tiles)
+    total = end[-1]
+    tri = eqx.error_if(
+        tri, total.astype(jnp.float32) > renderer.budget,
+        "the pose needs more pixel tiles than the renderer's budget (a zoomed-in window or "
+        "a strongly stretched mesh): it would take long to draw. Build the Renderer with a "
+        "larger budget= if that is meant, or draw a wider window.",
+    )
+    normal, offset = _edge_distances(tri)
     boundary = renderer.boundary & renderer.antialias
     face_bits, _ = _key_layout(count)
     level = _levels_of(renderer, vertices)
     far = jnp.asarray(1e6, tri.dtype)
-    rows_of = jnp.concatenate([
+    # Everything a tile needs from its triangle in one row, gathered once per tile (a
+    # row costs about what one of its numbers does alone).
+    table = jnp.concatenate([
         normal.reshape(-1, 6),
         offset + fringe,  # inside, fringe included
         offset + _EPS,  # inside, strictly
         jnp.where(boundary, offset, far),  # distance to the boundary edges, for coverage
         first.astype(tri.dtype), last.astype(tri.dtype),
-        across[:, :1].astype(tri.dtype), start[:, None].astype(tri.dtype),
-    ], axis=1)[face]
-    n = rows_of[:, :6].reshape(-1, 3, 2)
-    o_in, o_strict, o_cover = rows_of[:, 6:9], rows_of[:, 9:12], rows_of[:, 12:15]
-    first_t = rows_of[:, 15:17].astype(jnp.int32)
-    last_t = rows_of[:, 17:19].astype(jnp.int32)
-    width = jnp.maximum(rows_of[:, 19].astype(jnp.int32), 1)
-    local = slot - rows_of[:, 20].astype(jnp.int32)
+        across[:, :1].astype(tri.dtype), (end - tiles)[:, None].astype(tri.dtype),
+    ], axis=1)
     offsets = jnp.arange(tile, dtype=jnp.int32)
-    col = (first_t[:, 0] + (local % width) * tile)[:, None, None] + offsets[None, None, :]
-    row = (first_t[:, 1] + (local // width) * tile)[:, None, None] + offsets[None, :, None]
-    valid = ((slot < end[-1])[:, None, None] & (col <= last_t[:, 0, None, None])
-             & (row <= last_t[:, 1, None, None]))
-    pixel = jnp.where(valid, row * cols + col, rows * cols)
+    pixels = rows * cols
 
-    x, y = col.astype(tri.dtype), row.astype(tri.dtype)
-    along = [n[:, k, 0, None, None] * x + n[:, k, 1, None, None] * y for k in range(3)]
-    inside = valid
-    for k in range(3):
-        inside = inside & (along[k] + o_in[:, k, None, None] >= 0)
-    # Where several triangles of one level reach a pixel, the one covering it most wins:
-    # the coverage is then the same whichever of two neighbours is drawn, and continuous.
-    cover = [along[k] + o_cover[:, k, None, None] for k in range(3)]
-    coverage = jnp.clip(0.5 + jnp.minimum(jnp.minimum(cover[0], cover[1]), cover[2]), 0.0, 1.0)
-    steps = jnp.round(coverage * (2**_COVERAGE_BITS - 1)).astype(jnp.int32)
-    key = ((level[face] * 2**_COVERAGE_BITS)[:, None, None] + steps) * 2**face_bits \
-        + face[:, None, None]
-    key = jnp.where(inside, key, -1)
-    front = jnp.full(rows * cols + 1, -1, jnp.int32).at[pixel].max(key, mode="drop")
-    layers = [front[:-1]]
-    if renderer.antialias:
-        # Under a partly covering front triangle (its edge over another part) the top
-        # triangle that covers the pixel's centre shows. That is the top of those
-        # candidates alone: one of them above a partial front would have covered the
-        # pixel more, at the same level or above, and been the front itself.
-        solid = valid
+    def chunk(index, layers):
+        slot = index * _CHUNK + jnp.arange(_CHUNK, dtype=jnp.int32)
+        face = jnp.clip(jnp.searchsorted(end, slot, side="right"), 0, count - 1)
+        data = table[face]
+        n = data[:, :6].reshape(-1, 3, 2)
+        o_in, o_strict, o_cover = data[:, 6:9], data[:, 9:12], data[:, 12:15]
+        first_t = data[:, 15:17].astype(jnp.int32)
+        last_t = data[:, 17:19].astype(jnp.int32)
+        width = jnp.maximum(data[:, 19].astype(jnp.int32), 1)
+        local = slot - data[:, 20].astype(jnp.int32)
+        col = (first_t[:, 0] + (local % width) * tile)[:, None, None] + offsets[None, None, :]
+        row = (first_t[:, 1] + (local // width) * tile)[:, None, None] + offsets[None, :, None]
+        valid = ((slot < total)[:, None, None] & (col <= last_t[:, 0, None, None])
+                 & (row <= last_t[:, 1, None, None]))
+        pixel = jnp.where(valid, row * cols + col, pixels)
+        x, y = col.astype(tri.dtype), row.astype(tri.dtype)
+        along = [n[:, k, 0, None, None] * x + n[:, k, 1, None, None] * y for k in range(3)]
+        inside, solid = valid, valid
         for k in range(3):
+            inside = inside & (along[k] + o_in[:, k, None, None] >= 0)
             solid = solid & (along[k] + o_strict[:, k, None, None] >= 0)
-        back = jnp.full(rows * cols + 1, -1, jnp.int32).at[pixel].max(
-            jnp.where(solid, key, -1), mode="drop")
-        layers.append(back[:-1])
+        # Where several triangles of one level reach a pixel, the one covering it most
+        # wins: the coverage is then the same whichever of two neighbours is drawn.
+        cover = [along[k] + o_cover[:, k, None, None] for k in range(3)]
+        coverage = jnp.clip(0.5 + jnp.minimum(jnp.minimum(cover[0], cover[1]), cover[2]),
+                            0.0, 1.0)
+        steps = jnp.round(coverage * (2**_COVERAGE_BITS - 1)).astype(jnp.int32)
+        key = ((level[face] * 2**_COVERAGE_BITS)[:, None, None] + steps) * 2**face_bits \
+            + face[:, None, None]
+        front, back = layers
+        front = front.at[pixel].max(jnp.where(inside, key, -1), mode="drop")
+        if renderer.antialias:
+            # The top candidate covering the pixel's centre: under a partly covering front
+            # triangle (its edge over another part) it shows. No such candidate can lie
+            # above a partial front: it would cover the pixel more, and be the front.
+            back = back.at[pixel].max(jnp.where(solid, key, -1), mode="drop")
+        return front, back
 
-    table = _face_table(tri, renderer.texture_points[faces], renderer.boundary)
+    empty = jnp.full(pixels + 1, -1, jnp.int32)
+    chunks = (total + _CHUNK - 1) // _CHUNK
+    front, back = jax.lax.fori_loop(0, chunks, chunk, (empty, empty))
+    return face_bits, [front[:-1], back[:-1]] if renderer.antialias else [front[:-1]]
+
+
+@eqx.filter_jit
+def _draw(renderer: Renderer, vertices, window):
+    rows, cols = renderer.shape
+    faces = renderer.faces
+    points = _to_pixels(vertices, window, rows, cols)
+    tri = points[faces]
+    # Which triangle a pixel shows is decided without gradients; they flow through the
+    # shading (texture position and edge coverage) below.
+    face_bits, layers = _raster(renderer, jax.lax.stop_gradient(tri),
+                                jax.lax.stop_gradient(vertices), rows, cols)
+    table = _materialise(_face_table(tri, renderer.texture_points[faces], renderer.boundary))
     grid_col = jnp.tile(jnp.arange(cols, dtype=tri.dtype), rows)
     grid_row = jnp.repeat(jnp.arange(rows, dtype=tri.dtype), cols)
     colour = jnp.broadcast_to(_premultiply(renderer.background), (rows * cols, 4))
     for layer in layers[::-1]:
         triangle = jnp.bitwise_and(layer, 2**face_bits - 1)
-        colour = _shade(renderer, table.T[:, triangle], layer >= 0, grid_col, grid_row, colour)
+        # Rows gathered, then read as columns: one gather per pixel, not one per column.
+        colour = _shade(renderer, table[triangle].T, layer >= 0, grid_col, grid_row, colour)
     alpha = colour[:, 3:]
     straight = jnp.where(jnp.arange(4) < 3, colour / jnp.where(alpha > 0, alpha, 1.0), colour)
     return jnp.clip(straight, 0.0, 1.0).reshape(rows, cols, 4)
