@@ -5,9 +5,9 @@ bounding box as candidates, in small square tiles; a prefix sum over the triangl
 counts lays the tiles out one after the other, a loop takes them a chunk at a time (as
 many chunks as the pose needs), a pixel keeps the candidate that lies on top (a
 scatter-max over the draw order), and each pixel is then shaded once from its triangle:
-barycentric coordinates, the rest position there, a bilinear lookup of the picture. Edges on the mesh's boundary are antialiased by coverage, a linear ramp of the
-pixel's distance to the edge, so that the picture depends smoothly on the vertices there
-too; a second layer (the top candidate under the first) shows through where the top one
+barycentric coordinates, the rest position there, a bilinear lookup of the picture. Edges
+on the mesh's boundary are antialiased by coverage, a linear ramp of the pixel's distance
+to the edge, so that the picture depends smoothly on the vertices there too; a second layer (the top candidate under the first) shows through where the top one
 covers a pixel partly, so that a part drawn over another has clean edges.
 
 Pixel convention, shared with `Shape.from_image`: a picture of `rows x cols` pixels spans
