@@ -7,7 +7,8 @@ many chunks as the pose needs), a pixel keeps the candidate that lies on top (a
 scatter-max over the draw order), and each pixel is then shaded once from its triangle:
 barycentric coordinates, the rest position there, a bilinear lookup of the picture. Edges
 on the mesh's boundary are antialiased by coverage, a linear ramp of the pixel's distance
-to the edge, so that the picture depends smoothly on the vertices there too; a second layer (the top candidate under the first) shows through where the top one
+to the edge, so that the picture depends smoothly on the vertices there too; a second
+layer (the top candidate covering the pixel's centre) shows through where the top one
 covers a pixel partly, so that a part drawn over another has clean edges.
 
 Pixel convention, shared with `Shape.from_image`: a picture of `rows x cols` pixels spans
