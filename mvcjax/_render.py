@@ -207,6 +207,7 @@ class Renderer(eqx.Module):
         background: Any = (0.0, 0.0, 0.0, 0.0),
         depth: Any = None,
         antialias: bool = True,
+        alpha: str = "mesh",
         budget: Any = None,
         dtype: Any = None,
     ) -> Renderer:
@@ -239,6 +240,12 @@ class Renderer(eqx.Module):
                 largest move), so that a dragged part passes over the rest of the shape.
             antialias: smooth (and differentiable) boundary edges; False draws hard edges
                 at about half the cost.
+            alpha: where the drawn shape's edge comes from. `"mesh"` (default): the mesh
+                is the silhouette (as `Shape.from_image` traced it), antialiased by its
+                coverage of each pixel; the picture is drawn opaque, its colours carried
+                past its own soft edge so that no dark rim comes in. `"picture"`: the
+                picture's alpha multiplies the coverage, for pictures that are partly
+                transparent inside.
             budget: the most square pixel tiles (the tile's side is picked for the mesh)
                 the triangles' bounding boxes may cover in one picture: the work grows
                 with them. Default: sixteen times the rest mesh's in this window plus four
@@ -248,7 +255,9 @@ class Renderer(eqx.Module):
         """
         vertices, faces = _mesh_of(mesh)
         if dtype is None:
-            dtype = vertices.dtype if vertices.dtype in (np.float32, np.float64) else np.float32
+            # The mesh's float type, as JAX has it (float64 only with x64 enabled).
+            dtype = jax.dtypes.canonicalize_dtype(
+                vertices.dtype if vertices.dtype in (np.float32, np.float64) else np.float32)
         dtype = np.dtype(dtype)
         if image is not None:
             picture = _picture(image, "image")
@@ -284,8 +293,9 @@ class Renderer(eqx.Module):
             budget = 16 * rest + 4 * -(-rows // tile) * -(-cols // tile)
         if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1:
             raise ValueError(f"budget must be a whole number >= 1, got {budget!r}.")
-        premultiplied = picture.copy()
-        premultiplied[..., :3] *= picture[..., 3:]
+        if alpha not in ("mesh", "picture"):
+            raise ValueError(f"alpha must be 'mesh' or 'picture', got {alpha!r}.")
+        premultiplied = _texture(picture, alpha)
         background = np.asarray(background, np.float64)
         if background.shape == (3,):
             background = np.append(background, 1.0)
@@ -394,6 +404,23 @@ def _mesh_of(mesh) -> tuple[np.ndarray, np.ndarray]:
         return np.asarray(mesh[0]), faces.astype(np.int64)
     raise TypeError(f"mesh must be a Rig, a ShapeMesh or a pair (vertices, faces), got "
                     f"{type(mesh).__name__}.")
+
+
+def _texture(picture: np.ndarray, alpha: str) -> np.ndarray:
+    """The premultiplied texture: the picture's own alpha, or opaque with the colours of
+    its visible pixels carried to the transparent ones nearest to them."""
+    texture = picture.astype(np.float64)
+    if alpha == "picture":
+        texture[..., :3] *= texture[..., 3:]
+        return texture
+    seen = texture[..., 3] > 1 / 255
+    if seen.any() and not seen.all():
+        import scipy.ndimage
+
+        _, nearest = scipy.ndimage.distance_transform_edt(~seen, return_indices=True)
+        texture[..., :3] = texture[nearest[0], nearest[1], :3]
+    texture[..., 3] = 1.0
+    return texture
 
 
 def _fill(fill, vertices):
@@ -567,7 +594,10 @@ def _raster(renderer: Renderer, tri, vertices, rows: int, cols: int):
     empty = jnp.full(pixels + 1, -1, jnp.int32)
     chunks = (total + _CHUNK - 1) // _CHUNK
     front, back = jax.lax.fori_loop(0, chunks, chunk, (empty, empty))
-    return face_bits, [front[:-1], back[:-1]] if renderer.antialias else [front[:-1]]
+    if not renderer.antialias:
+        return face_bits, [front[:-1]]
+    # Where the front triangle covers the centre itself, it is its own layer beneath.
+    return face_bits, [front[:-1], jnp.where(back == front, -1, back)[:-1]]
 
 
 @eqx.filter_jit
@@ -610,8 +640,10 @@ def _shade(renderer: Renderer, table, drawn, x, y, under):
     coverage = jnp.where(drawn, coverage, 0.0)
     u, v, coverage = _materialise((u, v, coverage))
     colour = _bilinear(renderer.texture, u, v)
-    coverage = coverage[:, None]
-    return _materialise(coverage * colour + (1.0 - coverage) * under)
+    # Premultiplied "over": what lies under shows through where the texture is partly
+    # transparent as well as where the triangle covers the pixel partly.
+    source = coverage[:, None] * colour
+    return _materialise(source + (1.0 - source[:, 3:]) * under)
 
 
 def _materialise(tree):

@@ -313,3 +313,15 @@ def test_frames_draws_batches_as_bytes_with_silent_progress(renderer, rig, capfd
     assert "2/2" in capfd.readouterr().err
     with pytest.raises(ValueError, match=r"vertices must be \(frames"):
         renderer.frames(frames[0])
+
+
+@pytest.mark.parametrize(("alpha", "expected"), [("picture", [0.5, 0.0, 0.5, 1.0]),
+                                                 ("mesh", [1.0, 0.0, 0.0, 1.0])])
+def test_a_partly_transparent_picture_lies_over_the_background(alpha, expected):
+    square = np.array([[0, 0], [9, 0], [9, 9], [0, 9]], float)
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    half_red = np.broadcast_to([1.0, 0.0, 0.0, 0.5], (10, 10, 4))
+    out = mvcjax.render((square, faces), jnp.asarray(square), half_red,
+                        background=(0.0, 0.0, 1.0, 1.0), alpha=alpha)
+    np.testing.assert_allclose(out[5, 5], expected, atol=1e-12)
+    assert np.all(np.asarray(out)[..., 3] == 1)  # an opaque background stays opaque
