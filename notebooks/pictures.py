@@ -219,8 +219,8 @@ plt.show()
 # When a part swings over another, two triangles cover the same pixels. By default the
 # triangles that moved further from rest lie on top: the arm passes in front of the
 # body. `depth=` gives an order of one's own instead, a number per rest vertex (larger
-# on top): here the arms are at depth 0 and the rest of the body at 1, so that the arm
-# passes behind it.
+# on top), which `depth_from_handles` spreads from a number per handle: here the arms
+# are at depth 0 and the rest of the body at 1, so that the arm passes behind it.
 #
 # The arm turns 90 degrees. Much further (past about 100 degrees here) the solvers fold
 # the hand over onto itself: the energy keeps lengths and shapes but has no term against
@@ -231,18 +231,14 @@ across = turn(rest, "right arm", -90)  # the hand goes to the buckle, across the
 crossed = rig.deform(across, mvcjax.GaussNewton())
 
 
-def near(points, bone, distance):
-    """Whether points lie within `distance` of a bone's segment."""
-    d = bone.end - bone.start
-    along = np.clip((points - bone.start) @ d / (d @ d), 0, 1)
-    return np.hypot(*(points - bone.start - along[:, None] * d).T) < distance
-
-
-# The arms at rest: near their bones, and outside the shirt.
-points = np.asarray(rig.shape_mesh.vertices)
-arms = ((near(points, bones["left arm"], 14) | near(points, bones["right arm"], 14))
-        & (np.abs(points[:, 0] - 150) > 30))
-behind = mvcjax.Renderer.build(rig, picture, depth=np.where(arms, 0.0, 1.0))
+# A depth per target row (the arms' at 0, the rest at 1), spread over the mesh: every
+# vertex takes the depth of the handle nearest to it along the shape.
+depths = np.ones(len(rest))
+for name in ("left arm", "right arm"):
+    depths[ROW[name]:ROW[name] + 2] = 0.0
+depth = mvcjax.depth_from_handles(rig, depths)
+behind = mvcjax.Renderer.build(rig, picture, depth=depth)
+arms = depth == 0.0
 
 fig, axes = plt.subplots(1, 3, figsize=(12, 4))
 on_arm = arms[faces].all(axis=1)
