@@ -342,7 +342,7 @@ class Renderer(eqx.Module):
 
     def frames(self, vertices: Any, *, chunk: Any = None, progress: Any = None) -> np.ndarray:
         """Many pictures, ready to write: `(frames, rows, cols, 4)` straight RGBA as
-        `uint8` numpy, drawn `chunk` frames at a time by one compiled `jax.vmap`.
+        `uint8` numpy, drawn `chunk` frames at a time by one compiled program.
 
         Args:
             vertices: `(frames, n, 2)` vertex positions, e.g. from `deform_frames`.
@@ -382,7 +382,9 @@ class Renderer(eqx.Module):
 
 @eqx.filter_jit
 def _draw_batch(renderer: Renderer, frames):
-    return jax.vmap(lambda v: _draw(renderer, v, renderer.window))(frames)
+    # One frame after another inside one program: vmapped, XLA fuses the batch's shading
+    # into larger loops that redo table lookups, and it ran at half the speed of a loop.
+    return jax.lax.map(lambda v: _draw(renderer, v, renderer.window), frames)
 
 
 def _mesh_of(mesh) -> tuple[np.ndarray, np.ndarray]:
@@ -495,24 +497,31 @@ def _levels_of(renderer: Renderer, vertices):
 
 
 def _face_table(tri, texture_tri, boundary):
-    """Per triangle, what shading a pixel needs: the affine map from a pixel centre to its
-    texture position (2 x 3), and the distances to its boundary edges (3 x 3: normal and
-    offset; a far offset for inner edges, which must not fade)."""
-    normal, offset = _edge_distances(tri)
-    # Barycentric weight of vertex k: distance to the opposite edge over k's height.
+    """Per triangle, what shading a pixel needs, relative to the triangle's first vertex
+    `a` (an affine map built from absolute pixel positions would cancel large terms, and
+    float32 would lose hundredths of a texel at 1024 pixels): the linear map from
+    `p - a` to the texture position (2 x 2), `a`, the texture position at `a`, and for
+    each boundary edge its inward normal and the distance of `a` from it (inner edges: a
+    zero normal and a far distance, so that they never fade)."""
+    normal, _ = _edge_distances(tri)
+    a = tri[:, 0]
+    relative = tri - a[:, None]  # (f, 3, 2), its first row zero
+    # Barycentric weight of vertex k: distance to the opposite edge over k's height,
+    # with the opposite edge running from vertex k + 1.
     opposite = jnp.array([1, 2, 0])
-    n_opp, o_opp = normal[:, opposite], offset[:, opposite]
-    height = jnp.sum(n_opp * tri, axis=-1) + o_opp
+    n_opp = normal[:, opposite]
+    start = relative[:, [1, 2, 0]]  # start of the edge opposite vertex k
+    height = jnp.sum(n_opp * (relative - start), axis=-1)
     height = jnp.where(jnp.abs(height) > 1e-12, height, 1.0)
-    linear = n_opp / height[..., None]  # (f, 3, 2): weight_k = linear_k . p + constant_k
-    constant = o_opp / height
+    linear = n_opp / height[..., None]  # weight_k = linear_k . (p - a) + constant_k
     uv_linear = jnp.einsum("fkt,fkd->ftd", texture_tri, linear)  # (f, 2 texture, 2 pixel)
-    uv_constant = jnp.einsum("fkt,fk->ft", texture_tri, constant)
     far = jnp.asarray(1e6, tri.dtype)
     edge_normal = jnp.where(boundary[..., None], normal, 0.0)
-    edge_offset = jnp.where(boundary, offset, far)
-    return jnp.concatenate([uv_linear.reshape(-1, 4), uv_constant,
-                            edge_normal.reshape(-1, 6), edge_offset], axis=1)
+    # Distance of `a` from edge k (starting at vertex k), inside positive.
+    edge_offset = jnp.where(boundary, jnp.sum(normal * (-relative), axis=-1), far)
+    edges = jnp.concatenate([edge_normal, edge_offset[..., None]], axis=-1)  # (f, 3, 3)
+    return jnp.concatenate([uv_linear.reshape(-1, 4), a, texture_tri[:, 0],
+                            edges.reshape(-1, 9)], axis=1)
 
 
 def _raster(renderer: Renderer, tri, vertices, rows: int, cols: int):
@@ -610,7 +619,8 @@ def _draw(renderer: Renderer, vertices, window):
     # shading (texture position and edge coverage) below.
     face_bits, layers = _raster(renderer, jax.lax.stop_gradient(tri),
                                 jax.lax.stop_gradient(vertices), rows, cols)
-    table = _materialise(_face_table(tri, renderer.texture_points[faces], renderer.boundary))
+    table = _materialise(_face_table(tri, renderer.texture_points[faces], renderer.boundary),
+                         renderer.texture)
     grid_col = jnp.tile(jnp.arange(cols, dtype=tri.dtype), rows)
     grid_row = jnp.repeat(jnp.arange(rows, dtype=tri.dtype), cols)
     colour = jnp.broadcast_to(_premultiply(renderer.background), (rows * cols, 4))
@@ -628,32 +638,36 @@ def _premultiply(rgba):
 
 
 def _shade(renderer: Renderer, table, drawn, x, y, under):
-    """Pixels drawn by the triangles whose `table` columns are given (`(15, p)`), over the
+    """Pixels drawn by the triangles whose `table` columns are given (`(17, p)`), over the
     premultiplied `under` (`(p, 4)`), where `drawn`."""
-    u = table[0] * x + table[1] * y + table[4]
-    v = table[2] * x + table[3] * y + table[5]
+    dx, dy = x - table[4], y - table[5]
+    u = table[0] * dx + table[1] * dy + table[6]
+    v = table[2] * dx + table[3] * dy + table[7]
     if renderer.antialias:
-        edge = [table[6 + 2 * k] * x + table[7 + 2 * k] * y + table[12 + k] for k in range(3)]
+        edge = [table[8 + 3 * k] * dx + table[9 + 3 * k] * dy + table[10 + 3 * k]
+                for k in range(3)]
         coverage = jnp.clip(0.5 + jnp.minimum(jnp.minimum(edge[0], edge[1]), edge[2]), 0.0, 1.0)
     else:
         coverage = jnp.ones_like(u)
     coverage = jnp.where(drawn, coverage, 0.0)
-    u, v, coverage = _materialise((u, v, coverage))
+    u, v, coverage = _materialise((u, v, coverage), renderer.texture)
     colour = _bilinear(renderer.texture, u, v)
     # Premultiplied "over": what lies under shows through where the texture is partly
     # transparent as well as where the triangle covers the pixel partly.
     source = coverage[:, None] * colour
-    return _materialise(source + (1.0 - source[:, 3:]) * under)
+    return _materialise(source + (1.0 - source[:, 3:]) * under, renderer.texture)
 
 
-def _materialise(tree):
+def _materialise(tree, anchor):
     """`tree`, computed once into memory. XLA's CPU fusion would otherwise recompute a
     table lookup and its arithmetic inside every consumer (each texel and channel: 4x to
     8x the work), and it drops `optimization_barrier`s; a conditional it must keep (its
     predicate is unknown at compile time, and true unless the input holds a NaN) is a
     boundary it cannot fuse across."""
-    first = jax.tree.leaves(tree)[0]
-    keep = jnp.isfinite(jax.lax.stop_gradient(first.reshape(-1)[0]))
+    # The predicate comes from `anchor` (the texture), which `jax.vmap(renderer)` over
+    # frames does not batch: a batched predicate would turn the conditional into a select,
+    # which XLA fuses like any other operation.
+    keep = jnp.isfinite(jax.lax.stop_gradient(anchor.reshape(-1)[0]))
     return jax.lax.cond(keep, lambda t: t, lambda t: jax.tree.map(jnp.zeros_like, t), tree)
 
 
