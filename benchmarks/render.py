@@ -130,6 +130,8 @@ def run_render(shape, vertices_list, sizes, repeats: int, quick: bool, rigs: dic
             single = jax.jit(lambda v, r=renderer: r(v))
             single_hard = jax.jit(lambda v, r=hard: r(v))
             batched = jax.jit(jax.vmap(renderer))
+            # Renderer.frames' way: one frame after another inside one program.
+            mapped = jax.jit(lambda f, r=renderer: jax.lax.map(r, f))
 
             def loop(frames, f=single):
                 return [f(v) for v in frames]
@@ -161,6 +163,10 @@ def run_render(shape, vertices_list, sizes, repeats: int, quick: bool, rigs: dic
             row["loop_ms"] = median_ms(loop, [(singles,)], few)
             row["loop_frame_ms"] = row["loop_ms"] / count
             row["batch_over_loop_throughput"] = row["loop_ms"] / row["batch_ms"]
+            row["map_compile_ms"] = compile_ms(mapped, frames)
+            row["map_ms"] = median_ms(mapped, [(frames,)], few)
+            row["map_frame_ms"] = row["map_ms"] / count
+            row["map_over_loop_throughput"] = row["loop_ms"] / row["map_ms"]
             row["target_batch_over_loop"] = TARGET_BATCH_OVER_LOOP
             row["batch_target_met"] = row["batch_over_loop_throughput"] >= TARGET_BATCH_OVER_LOOP
             if size == TARGET_SIZE and target == TARGET_VERTICES:
@@ -173,15 +179,16 @@ def run_render(shape, vertices_list, sizes, repeats: int, quick: bool, rigs: dic
 
 
 RENDER_HEADER = (f"{'V_S':>6} {'size':>9} {'tile':>4} {'budget':>8} {'compile':>8} "
-                 f"{'frame':>8} {'no AA':>8} {'B':>3} {'batch/frame':>11} {'loop/frame':>10} "
-                 f"{'loop/batch':>10}")
+                 f"{'frame':>8} {'no AA':>8} {'B':>3} {'batch/frame':>11} {'map/frame':>10} "
+                 f"{'loop/frame':>10} {'loop/batch':>10}")
 
 
 def _render_line(row) -> str:
     return (f"{row['shape_vertices']:>6} {row['size']:>9} {row['tile']:>4} {row['budget']:>8} "
             f"{row['compile_ms']:>6.0f}ms {row['single_ms']:>6.2f}ms "
             f"{row['no_antialias_single_ms']:>6.2f}ms {row['batch']:>3} "
-            f"{row['batch_frame_ms']:>9.2f}ms {row['loop_frame_ms']:>8.2f}ms "
+            f"{row['batch_frame_ms']:>9.2f}ms {row['map_frame_ms']:>8.2f}ms "
+            f"{row['loop_frame_ms']:>8.2f}ms "
             f"{row['batch_over_loop_throughput']:>9.2f}x")
 
 
@@ -562,8 +569,9 @@ def main(argv=None) -> int:
     rows, rigs, seconds = [], {}, {}
     if "render" in args.parts:
         print(f"render, float32, checkerboard fill; frame = one jitted frame, no AA = "
-              f"antialias=False, batch = jit(vmap) of B frames, loop = the jitted frame over "
-              f"the same B\n{RENDER_HEADER}", flush=True)
+              f"antialias=False, batch = jit(vmap) of B frames, map = jit(lax.map) of them "
+              f"(Renderer.frames), loop = the jitted frame over the same B\n{RENDER_HEADER}",
+              flush=True)
         t0 = time.perf_counter()
         rows += run_render(shape, vertices, sizes, repeats, args.quick, rigs)
         seconds["render_part_s"] = time.perf_counter() - t0

@@ -619,8 +619,7 @@ def _draw(renderer: Renderer, vertices, window):
     # shading (texture position and edge coverage) below.
     face_bits, layers = _raster(renderer, jax.lax.stop_gradient(tri),
                                 jax.lax.stop_gradient(vertices), rows, cols)
-    table = _materialise(_face_table(tri, renderer.texture_points[faces], renderer.boundary),
-                         renderer.texture)
+    table = _materialise(_face_table(tri, renderer.texture_points[faces], renderer.boundary))
     grid_col = jnp.tile(jnp.arange(cols, dtype=tri.dtype), rows)
     grid_row = jnp.repeat(jnp.arange(rows, dtype=tri.dtype), cols)
     colour = jnp.broadcast_to(_premultiply(renderer.background), (rows * cols, 4))
@@ -650,24 +649,25 @@ def _shade(renderer: Renderer, table, drawn, x, y, under):
     else:
         coverage = jnp.ones_like(u)
     coverage = jnp.where(drawn, coverage, 0.0)
-    u, v, coverage = _materialise((u, v, coverage), renderer.texture)
+    u, v, coverage = _materialise((u, v, coverage))
     colour = _bilinear(renderer.texture, u, v)
     # Premultiplied "over": what lies under shows through where the texture is partly
     # transparent as well as where the triangle covers the pixel partly.
     source = coverage[:, None] * colour
-    return _materialise(source + (1.0 - source[:, 3:]) * under, renderer.texture)
+    return _materialise(source + (1.0 - source[:, 3:]) * under)
 
 
-def _materialise(tree, anchor):
+def _materialise(tree):
     """`tree`, computed once into memory. XLA's CPU fusion would otherwise recompute a
     table lookup and its arithmetic inside every consumer (each texel and channel: 4x to
     8x the work), and it drops `optimization_barrier`s; a conditional it must keep (its
     predicate is unknown at compile time, and true unless the input holds a NaN) is a
     boundary it cannot fuse across."""
-    # The predicate comes from `anchor` (the texture), which `jax.vmap(renderer)` over
-    # frames does not batch: a batched predicate would turn the conditional into a select,
-    # which XLA fuses like any other operation.
-    keep = jnp.isfinite(jax.lax.stop_gradient(anchor.reshape(-1)[0]))
+    # The predicate must depend on the frame's data: from a constant (a renderer closed
+    # over by jit) XLA would fold the conditional away. Under vmap it is batched, and the
+    # conditional becomes a select, which XLA fuses like any other operation: for many
+    # frames, `Renderer.frames` maps over them instead.
+    keep = jnp.isfinite(jax.lax.stop_gradient(jax.tree.leaves(tree)[0].reshape(-1)[0]))
     return jax.lax.cond(keep, lambda t: t, lambda t: jax.tree.map(jnp.zeros_like, t), tree)
 
 

@@ -26,7 +26,8 @@ def readme_python_blocks() -> list[str]:
     return blocks
 
 
-def test_readme_example_runs():
+def test_readme_example_runs(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the example writes an animation
     blocks = readme_python_blocks()
     assert blocks, "the README has no python example"
     for index, code in enumerate(blocks):
