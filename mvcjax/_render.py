@@ -37,8 +37,9 @@ from ._topology import _twins
 _EPS = 1e-4
 # A pixel centre within half a pixel outside a boundary edge is partly covered.
 _FRINGE = 0.5
-# Tiles drawn per step of the raster's loop.
+# Tiles drawn per step of the raster's loop, and pixels shaded per step of the shading's.
 _CHUNK = 2048
+_SHADE_CHUNK = 8192
 # Coverage steps in a candidate's key, and the draw levels of the default order.
 _COVERAGE_BITS = 6
 _MOVED_LEVELS = 16
@@ -179,6 +180,8 @@ class Renderer(eqx.Module):
         budget: the most pixel tiles the triangles of one picture may cover (static).
         tile: the side of those tiles, in pixels (static).
         antialias: whether boundary edges are antialiased (static).
+        see_through: whether the texture is partly transparent (`alpha="picture"`), so
+            that the layer beneath shows through it (static).
     """
 
     faces: Int[Array, "f 3"]
@@ -193,6 +196,7 @@ class Renderer(eqx.Module):
     budget: int = eqx.field(static=True)
     tile: int = eqx.field(static=True)
     antialias: bool = eqx.field(static=True)
+    see_through: bool = eqx.field(static=True)
 
     @classmethod
     def build(
@@ -315,6 +319,7 @@ class Renderer(eqx.Module):
             budget=int(budget),
             tile=tile,
             antialias=bool(antialias),
+            see_through=alpha == "picture",
         )
 
     def __call__(
@@ -620,16 +625,56 @@ def _draw(renderer: Renderer, vertices, window):
     face_bits, layers = _raster(renderer, jax.lax.stop_gradient(tri),
                                 jax.lax.stop_gradient(vertices), rows, cols)
     table = _materialise(_face_table(tri, renderer.texture_points[faces], renderer.boundary))
-    grid_col = jnp.tile(jnp.arange(cols, dtype=tri.dtype), rows)
-    grid_row = jnp.repeat(jnp.arange(rows, dtype=tri.dtype), cols)
-    colour = jnp.broadcast_to(_premultiply(renderer.background), (rows * cols, 4))
-    for layer in layers[::-1]:
-        triangle = jnp.bitwise_and(layer, 2**face_bits - 1)
-        # Rows gathered, then read as columns: one gather per pixel, not one per column.
-        colour = _shade(renderer, table[triangle].T, layer >= 0, grid_col, grid_row, colour)
+    pixels = rows * cols
+    colour = jnp.broadcast_to(_premultiply(renderer.background), (pixels, 4))
+    front = layers[0]
+    if renderer.antialias:
+        # The layer beneath shows only where the front triangle covers a pixel partly
+        # (the coverage in its key), or everywhere a picture is partly transparent.
+        partial = jnp.bitwise_and(front >> face_bits, 2**_COVERAGE_BITS - 1) \
+            < 2**_COVERAGE_BITS - 1
+        if renderer.see_through:
+            partial = jnp.ones_like(partial)
+        beneath = jnp.where(partial, layers[1], -1)
+        colour = _shade_where(renderer, table, beneath, face_bits, cols, colour)
+    colour = _shade_where(renderer, table, front, face_bits, cols, colour)
     alpha = colour[:, 3:]
     straight = jnp.where(jnp.arange(4) < 3, colour / jnp.where(alpha > 0, alpha, 1.0), colour)
     return jnp.clip(straight, 0.0, 1.0).reshape(rows, cols, 4)
+
+
+def _shade_where(renderer: Renderer, table, layer, face_bits: int, cols: int, colour):
+    """`colour` with the pixels that `layer` draws (a key per pixel, -1 for none) shaded
+    over it. Only those pixels are shaded: they are listed first (a prefix sum), then
+    taken `_SHADE_CHUNK` at a time by a loop of a fixed number of steps whose steps past
+    the list are skipped (a fixed count keeps it differentiable in reverse mode). A pixel
+    is listed once, so its colour under is read from `colour` as given."""
+    pixels = layer.shape[0]
+    drawn = layer >= 0
+    position = jax.lax.associative_scan(jnp.add, drawn.astype(jnp.int32))
+    count = position[-1]
+    steps = -(-pixels // _SHADE_CHUNK)
+    listed = jnp.full(steps * _SHADE_CHUNK, pixels, jnp.int32).at[
+        jnp.where(drawn, position - 1, steps * _SHADE_CHUNK)].set(
+        jnp.arange(pixels, dtype=jnp.int32), mode="drop")
+
+    def shade(index):
+        at = jax.lax.dynamic_slice(listed, (index * _SHADE_CHUNK,), (_SHADE_CHUNK,))
+        pixel = jnp.minimum(at, pixels - 1)
+        key = jnp.where(at < pixels, layer[pixel], -1)
+        rows_of = table[jnp.bitwise_and(key, 2**face_bits - 1)].T
+        x = (pixel % cols).astype(table.dtype)
+        y = (pixel // cols).astype(table.dtype)
+        return _shade(renderer, rows_of, key >= 0, x, y, colour[pixel])
+
+    def step(carry, index):
+        skip = lambda i: jnp.zeros((_SHADE_CHUNK, 4), colour.dtype)  # noqa: E731
+        return carry, jax.lax.cond(index * _SHADE_CHUNK < count, shade, skip, index)
+
+    # Each step's pixels come out as its own rows, written once at the end: a colour
+    # buffer carried through the loop would be copied at every step.
+    _, shaded = jax.lax.scan(step, None, jnp.arange(steps))
+    return colour.at[listed].set(shaded.reshape(-1, 4), mode="drop")
 
 
 def _premultiply(rgba):
