@@ -330,7 +330,9 @@ class Renderer(eqx.Module):
         Args:
             vertices: `(n, 2)` vertex positions (deformed), in the plane's coordinates.
             window: `(4,)` another rectangle `(xmin, ymin, xmax, ymax)` to draw (numbers:
-                no recompilation); default the renderer's.
+                no recompilation); default the renderer's. `"grow"`: the renderer's,
+                grown (keeping square pixels) to hold the pose with a 5% margin, for a
+                pose that leaves the picture's frame.
 
         Returns:
             `(rows, cols, 4)` straight (not premultiplied) RGBA in [0, 1].
@@ -341,8 +343,29 @@ class Renderer(eqx.Module):
             raise ValueError(f"vertices must be ({n}, 2), one (x, y) per vertex of the mesh "
                              f"the renderer was built for, got shape {shape}; for many frames "
                              "use jax.vmap(renderer)(frames).")
-        return _draw(self, jnp.asarray(vertices, self.texture.dtype),
+        vertices = jnp.asarray(vertices, self.texture.dtype)
+        if isinstance(window, str):
+            if window != "grow":
+                raise ValueError(f"window must be (xmin, ymin, xmax, ymax), None or 'grow', "
+                                 f"got {window!r}.")
+            window = _grown(self.window, vertices, self.shape)
+        return _draw(self, vertices,
                      self.window if window is None else jnp.asarray(window, self.texture.dtype))
+
+
+def _grown(window, vertices, shape: tuple[int, int]):
+    """`window` grown to hold `vertices` with a 5% margin, then to the picture's aspect
+    ratio about its centre (pure JAX: a pose's numbers, no recompilation)."""
+    points = jax.lax.stop_gradient(vertices)
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    margin = 0.05 * (hi - lo)
+    lo = jnp.minimum(window[:2], lo - margin)
+    hi = jnp.maximum(window[2:], hi + margin)
+    rows, cols = shape
+    centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    pixel = jnp.maximum(half[0] / cols, half[1] / rows)
+    half = pixel * jnp.array([cols, rows], window.dtype)
+    return jnp.concatenate([centre - half, centre + half])
 
 
     def frames(self, vertices: Any, *, chunk: Any = None, progress: Any = None) -> np.ndarray:

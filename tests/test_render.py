@@ -325,3 +325,18 @@ def test_a_partly_transparent_picture_lies_over_the_background(alpha, expected):
                         background=(0.0, 0.0, 1.0, 1.0), alpha=alpha)
     np.testing.assert_allclose(out[5, 5], expected, atol=1e-12)
     assert np.all(np.asarray(out)[..., 3] == 1)  # an opaque background stays opaque
+
+
+def test_a_grown_window_holds_a_pose_that_leaves_the_frame(renderer, rig):
+    away = rig.shape_mesh.vertices + jnp.array([60.0, 0.0])
+    cut = np.asarray(renderer(away))
+    grown = np.asarray(renderer(away, window="grow"))
+    # Cut off at the frame's right edge, the pose is whole in a grown window: nothing is
+    # drawn along its border, and the drawn area is the rest picture's, scaled down.
+    assert cut[:, -1, 3].max() > 0.5
+    for edge in (grown[0], grown[-1], grown[:, 0], grown[:, -1]):
+        assert edge[..., 3].max() == 0
+    rest = np.asarray(renderer(rig.shape_mesh.vertices))[..., 3].sum()
+    assert 0.2 * rest < grown[..., 3].sum() < rest  # the grown window's pixels are larger
+    with pytest.raises(ValueError, match="'grow'"):
+        renderer(away, window="fit")
