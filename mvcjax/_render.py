@@ -353,21 +353,6 @@ class Renderer(eqx.Module):
                      self.window if window is None else jnp.asarray(window, self.texture.dtype))
 
 
-def _grown(window, vertices, shape: tuple[int, int]):
-    """`window` grown to hold `vertices` with a 5% margin, then to the picture's aspect
-    ratio about its centre (pure JAX: a pose's numbers, no recompilation)."""
-    points = jax.lax.stop_gradient(vertices)
-    lo, hi = points.min(axis=0), points.max(axis=0)
-    margin = 0.05 * (hi - lo)
-    lo = jnp.minimum(window[:2], lo - margin)
-    hi = jnp.maximum(window[2:], hi + margin)
-    rows, cols = shape
-    centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
-    pixel = jnp.maximum(half[0] / cols, half[1] / rows)
-    half = pixel * jnp.array([cols, rows], window.dtype)
-    return jnp.concatenate([centre - half, centre + half])
-
-
     def frames(self, vertices: Any, *, chunk: Any = None, progress: Any = None) -> np.ndarray:
         """Many pictures, ready to write: `(frames, rows, cols, 4)` straight RGBA as
         `uint8` numpy, drawn `chunk` frames at a time by one compiled program.
@@ -406,6 +391,21 @@ def _grown(window, vertices, shape: tuple[int, int]):
                     jnp.round(pictures[:done] * 255).astype(jnp.uint8))
                 bar.update(done)
         return out
+
+
+def _grown(window, vertices, shape: tuple[int, int]):
+    """`window` grown to hold `vertices` with a 5% margin, then to the picture's aspect
+    ratio about its centre (pure JAX: a pose's numbers, no recompilation)."""
+    points = jax.lax.stop_gradient(vertices)
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    margin = 0.05 * (hi - lo)
+    lo = jnp.minimum(window[:2], lo - margin)
+    hi = jnp.maximum(window[2:], hi + margin)
+    rows, cols = shape
+    centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    pixel = jnp.maximum(half[0] / cols, half[1] / rows)
+    half = pixel * jnp.array([cols, rows], window.dtype)
+    return jnp.concatenate([centre - half, centre + half])
 
 
 @eqx.filter_jit
