@@ -30,7 +30,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._checks import as_points, kind_of
-from ._topology import _twins
+from ._topology import on_boundary
 
 # A candidate pixel is inside a triangle when its centre is no further than this outside
 # an edge (in pixels): shared edges then never leave a crack between their triangles.
@@ -284,7 +284,7 @@ class Renderer(eqx.Module):
             size = tuple(int(max(1, round(e / pixel))) for e in extent[::-1])
         rows, cols = _size(size)
         texture_points = np.asarray(_to_pixels(vertices, image_window, *picture.shape[:2]))
-        boundary = (_twins(faces) < 0).reshape(-1, 3)
+        boundary = on_boundary(faces)
         level = None
         if depth is not None:
             depth = np.asarray(depth, np.float64)
@@ -342,7 +342,7 @@ class Renderer(eqx.Module):
             shape = getattr(vertices, "shape", None)
             raise ValueError(f"vertices must be ({n}, 2), one (x, y) per vertex of the mesh "
                              f"the renderer was built for, got shape {shape}; for many frames "
-                             "use jax.vmap(renderer)(frames).")
+                             "use renderer.frames(frames) (or jax.vmap(renderer)).")
         vertices = jnp.asarray(vertices, self.texture.dtype)
         if isinstance(window, str):
             if window != "grow":
@@ -351,7 +351,6 @@ class Renderer(eqx.Module):
             window = _grown(self.window, vertices, self.shape)
         return _draw(self, vertices,
                      self.window if window is None else jnp.asarray(window, self.texture.dtype))
-
 
     def frames(self, vertices: Any, *, chunk: Any = None, progress: Any = None) -> np.ndarray:
         """Many pictures, ready to write: `(frames, rows, cols, 4)` straight RGBA as
@@ -365,6 +364,7 @@ class Renderer(eqx.Module):
                 when there are more than 10 frames.
         """
         from ._progress import progress_bar
+        from .export import to_uint8
 
         n = self.texture_points.shape[0]
         frames = np.asarray(vertices)
@@ -387,8 +387,7 @@ class Renderer(eqx.Module):
                     part = np.concatenate([part, np.repeat(part[-1:], chunk - len(part), 0)])
                 pictures = _draw_batch(self, jnp.asarray(part, self.texture.dtype))
                 done = min(chunk, len(frames) - begin)
-                out[begin:begin + done] = np.asarray(
-                    jnp.round(pictures[:done] * 255).astype(jnp.uint8))
+                out[begin:begin + done] = to_uint8(np.asarray(pictures[:done]))
                 bar.update(done)
         return out
 
@@ -475,7 +474,7 @@ def _levels(values: np.ndarray) -> np.ndarray:
 
 def _key_layout(faces: int) -> tuple[int, int]:
     """A candidate's key packs, from the high bits down, the triangle's draw level, its
-    coverage of the pixel (in `_COVERAGE_STEPS` steps) and the triangle, in an int32: the
+    coverage of the pixel (in `_COVERAGE_BITS` bits) and the triangle, in an int32: the
     triangle's bits, and how many levels fit above."""
     face_bits = max(int(faces - 1).bit_length(), 1)
     return face_bits, 2 ** (31 - face_bits - _COVERAGE_BITS)
@@ -802,7 +801,7 @@ def render(mesh: Any, vertices: Any, image: Any = None, **options: Any) -> Float
                                                                                   "rows cols 4"]:
     """One picture of `mesh` at `vertices`: `Renderer.build(mesh, image, **options)(vertices)`.
 
-    For many pictures of one mesh, build the `Renderer` once and call it (or `jax.vmap`
-    it): building measures the mesh and prepares the texture.
+    For many pictures of one mesh, build the `Renderer` once and call it, or draw them
+    all with `Renderer.frames`: building measures the mesh and prepares the texture.
     """
     return Renderer.build(mesh, image, **options)(jnp.asarray(vertices))

@@ -46,8 +46,13 @@ def edges(faces: Int[np.ndarray, "f 3"]) -> Int[np.ndarray, "e 2"]:
 def boundary_edges(faces: Int[np.ndarray, "f 3"]) -> Int[np.ndarray, "b 2"]:
     """The directed edges with a face on one side only, oriented as that face."""
     u, v, _ = _half_edges(faces)
-    alone = _twins(faces) < 0
+    alone = on_boundary(faces).reshape(-1)
     return np.stack([u[alone], v[alone]], axis=1)
+
+
+def on_boundary(faces: Int[np.ndarray, "f 3"]) -> Bool[np.ndarray, "f 3"]:
+    """Whether each face's edges ab, bc, ca have no face on their other side."""
+    return (_twins(faces) < 0).reshape(-1, 3)
 
 
 def interior_edges(faces: Int[np.ndarray, "f 3"], loops=None) -> Int[np.ndarray, "e 2"]:
