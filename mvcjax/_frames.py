@@ -28,20 +28,14 @@ def _pad_frames(targets, multiple: int):
 
 
 def _deform_chunked(rig: Rig, targets, solver: AbstractSolver, chunk: int):
-    # Skinning as one dense product per chunk: vmapped, the gather of every frame's rows
-    # is ten times slower than the matrix product with all the chunk's frames at once.
-    weights = rig.skinning.matrix(rig.control_mesh.vertices.shape[0])
+    # Each chunk is a vmap of the single frame, which takes the batching rules of the
+    # solver and the skinning.
     frames = targets.shape[0]
     chunk = min(chunk, frames)
-    targets = _pad_frames(jax.vmap(rig._pinned)(targets), chunk)
-
-    def one(t):
-        start = jax.vmap(lambda x: rig._local_start(x, "rigid"))(t)
-        control = solver.solve_frames(rig.energy, rig.factor, t, start)
-        return jnp.einsum("nc,fcd->fnd", weights, control)
-
-    out = jax.lax.map(one, targets.reshape(-1, chunk, *targets.shape[1:]))
-    return rig.frame.to_world(out.reshape(-1, *out.shape[2:])[:frames])
+    targets = _pad_frames(targets, chunk)
+    out = jax.lax.map(jax.vmap(lambda t: rig.deform(t, solver)),
+                      targets.reshape(-1, chunk, *targets.shape[1:]))
+    return out.reshape(-1, *out.shape[2:])[:frames]
 
 
 @eqx.filter_jit
@@ -69,17 +63,17 @@ def deform_frames(
     targets: Any,
     solver: AbstractSolver = FixedG(),
     *,
-    chunk: Any = 64,
+    chunk: Any = 256,
     devices: Any = None,
 ) -> Float[Array, "frames n 2"]:
     """Deformed shape-mesh vertices for every frame of `targets`.
 
     One compiled program (cached by shapes and solver, like any `jit`) runs the frames
-    `chunk` at a time: the solves together, the skinning one dense matrix product for
-    the chunk. A plain `FixedG` on a dense factor (the default) runs as one iteration
-    over the whole chunk with the frames on the last axis, twice as fast as vmapping
-    it; any other solver is vmapped. With several devices the frames are split between them
-    (`jax.shard_map`, the rig replicated) and the result comes back in frame order.
+    `chunk` at a time, each chunk `jax.vmap(rig.deform)`: a plain `FixedG` (the default)
+    steps the chunk's frames together, frames last, and the skinning maps over them;
+    any other solver is vmapped as JAX does. With several
+    devices the frames are split between them (`jax.shard_map`, the rig replicated) and
+    the result comes back in frame order.
 
     Args:
         rig: the rig.

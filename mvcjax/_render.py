@@ -30,7 +30,9 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._checks import as_points, kind_of
+from ._module import JittableModule
 from ._topology import on_boundary
+from ._xla import materialise
 
 # A candidate pixel is inside a triangle when its centre is no further than this outside
 # an edge (in pixels): shared edges then never leave a crack between their triangles.
@@ -155,7 +157,7 @@ def _edge_distances(tri):
     return normal, offset
 
 
-class Renderer(eqx.Module):
+class Renderer(JittableModule):
     """Draws a triangle mesh at any vertex positions, textured by its rest positions.
 
     Build one with `Renderer.build` (from a rig or a mesh, a picture or a fill), then call
@@ -646,7 +648,7 @@ def _draw(renderer: Renderer, vertices, window):
     # shading (texture position and edge coverage) below.
     face_bits, layers = _raster(renderer, jax.lax.stop_gradient(tri),
                                 jax.lax.stop_gradient(vertices), rows, cols)
-    table = _materialise(_face_table(tri, renderer.texture_points[faces], renderer.boundary))
+    table = materialise(_face_table(tri, renderer.texture_points[faces], renderer.boundary))
     pixels = rows * cols
     colour = jnp.broadcast_to(_premultiply(renderer.background), (pixels, 4))
     front = layers[0]
@@ -716,26 +718,12 @@ def _shade(renderer: Renderer, table, drawn, x, y, under):
     else:
         coverage = jnp.ones_like(u)
     coverage = jnp.where(drawn, coverage, 0.0)
-    u, v, coverage = _materialise((u, v, coverage))
+    u, v, coverage = materialise((u, v, coverage))
     colour = _bilinear(renderer.texture, u, v)
     # Premultiplied "over": what lies under shows through where the texture is partly
     # transparent as well as where the triangle covers the pixel partly.
     source = coverage[:, None] * colour
-    return _materialise(source + (1.0 - source[:, 3:]) * under)
-
-
-def _materialise(tree):
-    """`tree`, computed once into memory. XLA's CPU fusion would otherwise recompute a
-    table lookup and its arithmetic inside every consumer (each texel and channel: 4x to
-    8x the work), and it drops `optimization_barrier`s; a conditional it must keep (its
-    predicate is unknown at compile time, and true unless the input holds a NaN) is a
-    boundary it cannot fuse across."""
-    # The predicate must depend on the frame's data: from a constant (a renderer closed
-    # over by jit) XLA would fold the conditional away. Under vmap it is batched, and the
-    # conditional becomes a select, which XLA fuses like any other operation: for many
-    # frames, `Renderer.frames` maps over them instead.
-    keep = jnp.isfinite(jax.lax.stop_gradient(jax.tree.leaves(tree)[0].reshape(-1)[0]))
-    return jax.lax.cond(keep, lambda t: t, lambda t: jax.tree.map(jnp.zeros_like, t), tree)
+    return materialise(source + (1.0 - source[:, 3:]) * under)
 
 
 def _bilinear(texture, u, v):

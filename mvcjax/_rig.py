@@ -17,6 +17,7 @@ from ._energy import Energy, Weights, check_weights, rigid_start, total_energy
 from ._factor import AbstractFactor, as_factor_method
 from ._frame import Frame, bounding_frame, check_representable, frame_array, points_to_local
 from ._handles import Handles, check_handles, make_handles, pin
+from ._module import JittableModule
 from ._shape import Shape
 from ._skinning import BarycentricSkinning, Skinning, as_skinning
 from ._solvers import AbstractSolver, FixedG
@@ -180,7 +181,7 @@ def _check_rig(shape_vertices, control_vertices, control_faces, skin_index, skin
         )
 
 
-class Rig(eqx.Module):
+class Rig(JittableModule):
     """A shape ready to deform: both meshes, the skinning weights and the solver's data.
 
     Build one with `Rig.build`. A rig is a pytree of arrays: pass it through `jax.jit`,
@@ -337,7 +338,7 @@ class Rig(eqx.Module):
                 _ints(np.concatenate(loops)), _ints(inner), _ints(control_pinned),
             ),
             handles=handles,
-            skinning=Skinning(_ints(skinning[0]), _array(skinning[1], dtype), skinning[2]),
+            skinning=Skinning.from_rows(*skinning, dtype),
             energy=energy,
             factor=factor(energy),
             frame=frame_array(centre, scale, dtype),
@@ -509,7 +510,7 @@ class Rig(eqx.Module):
         index, weight = self.skinning.method.weights_at(
             points_to_local(points, frame), control, np.asarray(self.control_mesh.faces)
         )
-        return Skinning(_ints(index), _array(weight, self.energy.rest.dtype), self.skinning.method)
+        return Skinning.from_rows(index, weight, self.skinning.method, self.energy.rest.dtype)
 
     def deform(
         self,

@@ -2,6 +2,7 @@
 float32 rigs are built with dtype=jnp.float32 where a test is about float32."""
 
 import os
+import re
 
 # The suite runs as two xdist workers on two cores (and notebooks in kernels of their
 # own): one BLAS thread each, or OpenBLAS's spinning threads oversubscribe the machine
@@ -82,3 +83,65 @@ def local_point(rig, offsets, noise=0.0, seed=0):
     start = rig.frame.to_local(rig.start(targets))
     start = start + noise * jax.random.normal(jax.random.key(seed), start.shape, start.dtype)
     return rig.frame.to_local(targets), start
+
+
+# Exhaustive variants, run by `pytest -m slow` (CI runs them in a step of their own): the
+# default suite keeps one or two of each family, and every test that only they would run.
+SLOW = [
+    # The notebooks but the quickstart (executed in their own kernels, 40 to 80 s each).
+    "tests/test_notebooks.py::test_notebook_runs[solvers]",
+    "tests/test_notebooks.py::test_notebook_runs[inverse]",
+    "tests/test_notebooks.py::test_notebook_runs[pictures]",
+    "tests/test_notebooks.py::test_notebook_runs[paper]",
+    # Each solver against scipy at one drag; the other two drags here.
+    "tests/test_solvers.py::test_solvers_agree_with_scipy[*-0-offset1]",
+    "tests/test_solvers.py::test_solvers_agree_with_scipy[*-4-offset2]",
+    # Implicit gradients: Gauss-Newton and the implicit fixed-G kept.
+    "tests/test_solvers.py::test_implicit_gradients_match_finite_differences_and_the_unrolled_one"
+    "[levenberg_marquardt]",
+    "tests/test_solvers.py::test_implicit_gradients_match_finite_differences_and_the_unrolled_one"
+    "[dogleg]",
+    "tests/test_solvers.py::test_implicit_gradients_match_finite_differences_and_the_unrolled_one"
+    "[jaxopt_levenberg_marquardt]",
+    "tests/test_solvers.py::test_implicit_gradients_match_finite_differences_and_the_unrolled_one"
+    "[anderson_implicit]",
+    "tests/test_solvers.py::test_energy_history_ends_where_the_solve_does[FixedG_anderson]",
+    "tests/test_solvers.py::test_energy_history_ends_where_the_solve_does[Dogleg]",
+    "tests/test_solvers.py::test_energy_history_ends_where_the_solve_does[JaxoptLevenbergMarquardt]",
+    "tests/test_solvers.py::test_stop_early_differentiates_in_reverse_mode_either_way",
+    "tests/test_solvers.py::test_gradient_through_jaxopt_gauss_newton_where_it_converges",
+    "tests/test_solver_options.py::test_forward_mode_through_a_solve_that_stops_early",
+    "tests/test_solver_options.py::test_negative_tolerances_no_longer_fake_convergence[Dogleg]",
+    "tests/test_solver_options.py::test_negative_tolerances_no_longer_fake_convergence"
+    "[LevenbergMarquardt]",
+    "tests/test_solver_options.py::test_an_overflowing_energy_is_not_converged[FixedG(i*",
+    "tests/test_solver_options.py::test_an_overflowing_energy_is_not_converged[FixedG(a*",
+    "tests/test_solver_options.py::test_an_overflowing_energy_is_not_converged[Dogleg()]",
+    "tests/test_solver_options.py::test_an_overflowing_energy_is_not_converged"
+    "[JaxoptGaussNewton()]",
+    # Structured descents against optimistix's at one damping; the other three here.
+    "tests/test_descents.py::test_structured_descent_steps_are_optimistix_steps[*-10.0-*",
+    "tests/test_descents.py::test_structured_descent_steps_are_optimistix_steps[*-0.3-*",
+    "tests/test_descents.py::test_structured_descent_steps_are_optimistix_steps[*-0.001-*",
+    "tests/test_descents.py::test_structured_loop_is_optimistix_gauss_newton_loop[Dogleg]",
+    "tests/test_descents.py::test_structured_loop_is_optimistix_gauss_newton_loop"
+    "[LevenbergMarquardt]",
+    # Placements and scales: 1e3 and 1e-20 kept.
+    "tests/test_robustness.py::test_any_placement_and_scale_in_float64[100000.0-1.0]",
+    "tests/test_robustness.py::test_any_placement_and_scale_in_float64[1.0-0.001]",
+    "tests/test_robustness.py::test_any_placement_and_scale_in_float64[0.0-1e+20]",
+    "tests/test_robustness.py::test_any_placement_and_scale_in_float64[100000000.0-1.0]",
+    "tests/test_frames.py::test_frames_sharded_over_four_devices_give_the_same_result",
+    "tests/test_factor.py::test_gauss_newton_on_the_sparse_factor_over_frames",
+]
+
+
+def pytest_collection_modifyitems(config, items):
+    whole_suite = len(items) > 100
+    for pattern in SLOW:  # "*" is the only wildcard ("[" is literal, as in test ids)
+        regex = re.compile(".*".join(map(re.escape, pattern.split("*"))) + "$")
+        matched = [item for item in items if regex.match(item.nodeid)]
+        if not matched and whole_suite:  # a stale entry is a mistake
+            raise pytest.UsageError(f"conftest.SLOW: {pattern!r} matches no test; update it.")
+        for item in matched:
+            item.add_marker(pytest.mark.slow)

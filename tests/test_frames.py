@@ -102,14 +102,19 @@ def test_frames_sharded_over_four_devices_give_the_same_result():
 
 
 @pytest.mark.parametrize("factor", ["dense", "sparse"])
-def test_fixed_g_steps_all_frames_as_its_vmap_would(horse, factor):
-    # FixedG batches its frames (frames on the last axis); the default of every solver
-    # vmaps `solve`: both iterate the same map.
+def test_fixed_g_vmapped_steps_all_frames_as_plain_batching_would(horse, factor):
+    # Under jax.vmap a plain FixedG steps every frame together (frames on the last axis),
+    # through its batching rule; JAX's own batching of the loop iterates the same map.
     rig = mvcjax.Rig.build(horse, mvcjax.datasets.horse_handles(), factor=factor)
     targets = some_frames(rig, 4, seed=3)
-    local = rig.frame.to_local(targets)
+    local = jax.vmap(rig._pinned)(targets)
     starts = jax.vmap(lambda t: rig.frame.to_local(rig.start(t)))(targets)
     solver = mvcjax.FixedG(iterations=20)
-    batched = solver.solve_frames(rig.energy, rig.factor, local, starts)
-    vmapped = mvcjax.AbstractSolver.solve_frames(solver, rig.energy, rig.factor, local, starts)
-    np.testing.assert_allclose(batched, vmapped, atol=1e-9)
+    fast, fast_info = jax.vmap(solver.solve, (None, None, 0, 0))(rig.energy, rig.factor,
+                                                                  local, starts)
+    plain, plain_info = jax.vmap(solver._iterate, (None, None, 0, 0))(rig.energy, rig.factor,
+                                                                       local, starts)
+    np.testing.assert_allclose(fast, plain, atol=1e-9)
+    np.testing.assert_allclose(fast_info.energy, plain_info.energy, rtol=1e-9)
+    np.testing.assert_array_equal(fast_info.converged, plain_info.converged)
+    np.testing.assert_array_equal(fast_info.iterations, plain_info.iterations)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import mvcjax
-from mvcjax import datasets
+from mvcjax import _skinning, datasets
 
 METHODS = {"blended": mvcjax.BlendedMVCSkinning, "mvc": mvcjax.MVCSkinning,
            "barycentric": mvcjax.BarycentricSkinning}
@@ -152,3 +152,30 @@ def test_weights_at_carry_points_inside_jit(horse_rig):
     # The handles are shape vertices: carried alone, they go where the shape takes them.
     expected = horse_rig.deform(targets)[horse_rig.shape_mesh.handles]
     np.testing.assert_allclose(follow(skin, targets), expected, atol=1e-9)
+
+
+@pytest.mark.parametrize("tile", [1, 3, 8])
+def test_packed_rows_give_back_the_rows_and_the_same_map(tile):
+    # Rows sharing an index list share tiles; the packed map is the rows' map.
+    rng = np.random.default_rng(tile)
+    lists = np.sort(rng.choice(30, size=(7, 5), replace=True), axis=1)
+    index = lists[rng.integers(0, 7, size=100)]
+    weight = rng.uniform(-1, 1, size=index.shape)
+    tile_index, tile_weight, slot = _skinning.pack_rows(index, weight, tile)
+    assert tile_weight.shape[2] == tile and len(np.unique(slot)) == 100
+    np.testing.assert_array_equal(tile_index[:, slot // tile].T, index)
+    np.testing.assert_array_equal(tile_weight[:, slot // tile, slot % tile].T, weight)
+    skin = mvcjax.Skinning.from_rows(index, weight, mvcjax.MVCSkinning(), jnp.float64)
+    np.testing.assert_array_equal(skin.indices, index)
+    np.testing.assert_array_equal(skin.weights, weight)
+    control = jnp.asarray(rng.normal(size=(30, 2)))
+    np.testing.assert_allclose(skin(control), np.einsum("nk,nkd->nd", weight, control[index]),
+                               atol=1e-12)
+
+
+def test_skinning_rows_are_packed_with_little_padding(skinned_rigs):
+    for rig in skinned_rigs.values():
+        sk = rig.skinning
+        rows = sk.tile_weights.shape[1] * sk.tile_weights.shape[2]
+        assert sk.slots.shape[0] <= rows < 1.6 * sk.slots.shape[0]
+        assert sk.tile_weights.shape[1] < sk.slots.shape[0] / 4  # few gathers per frame

@@ -6,7 +6,6 @@ import abc
 from typing import Any
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
@@ -64,17 +63,6 @@ class AbstractSolver(eqx.Module):
             targets: `(h, 2)` handle targets.
             init: `(n, 2)` starting control vertices.
         """
-
-    def solve_frames(
-        self,
-        energy: Energy,
-        factor: AbstractFactor,
-        targets: Float[Array, "f h 2"],
-        init: Float[Array, "f n 2"],
-    ) -> Float[Array, "f n 2"]:
-        """`solve` for many frames at once, control vertices only. Vmapped by default;
-        a solver may batch better (`FixedG` steps all frames together)."""
-        return jax.vmap(lambda t, v: self.solve(energy, factor, t, v)[0])(targets, init)
 
     def fixed_steps(self, steps: int) -> AbstractSolver:
         """The same solver running exactly `steps` steps, its stopping test off: to time

@@ -11,6 +11,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
+from .._batching import only_batched, with_batching_rule
 from .._energy import total_energy
 from ._base import (
     AbstractSolver,
@@ -167,7 +168,11 @@ class FixedG(AbstractSolver):
 
     def solve(self, energy, factor, targets, init):
         if self.adjoint == "unrolled":
-            return self._iterate(energy, factor, targets, init)
+            if self.anderson or self.stop_early:
+                return self._iterate(energy, factor, targets, init)
+            # Under jax.vmap over targets, every frame runs in one loop, frames last.
+            return with_batching_rule(self._iterate, self._iterate_frames)(
+                energy, factor, targets, init)
 
         def half_gradient(v):
             # Zero exactly where the iteration stops moving: a fixed point of
@@ -236,14 +241,30 @@ class FixedG(AbstractSolver):
         )
         return vertices, info
 
-    def solve_frames(self, energy, factor, targets, init):
-        if self.anderson or self.stop_early or self.adjoint != "unrolled":
-            return super().solve_frames(energy, factor, targets, init)
+    def _iterate_frames(self, axis_size, in_batched, energy, factor, targets, init):
+        """`jax.vmap(self._iterate)` where only the targets (and the starts) vary: all
+        frames step together, laid out frames last (`factor.step_frames`: every gather
+        moves rows of contiguous frames, and the global step is one matrix product)."""
+        if not (only_batched(in_batched, 2, 3) or only_batched(in_batched, 2)):
+            return None  # a batch of rigs or weights: JAX's own batching
+        init = jnp.broadcast_to(init, (axis_size, *init.shape[-2:]))
         data = factor.handle_part_frames(targets)
-        vertices = jnp.moveaxis(init, 0, -1)  # frames last: (n, 2, f)
-        vertices = jax.lax.fori_loop(0, self.iterations,
-                                     lambda _, v: factor.step_frames(v, data), vertices)
-        return jnp.moveaxis(vertices, -1, 0)
+        start = jnp.moveaxis(init, 0, -1)  # (n, 2, f)
+        before = jax.lax.fori_loop(0, self.iterations - 1,
+                                   lambda _, v: factor.step_frames(v, data), start)
+        last = factor.step_frames(before, data)
+        residual = jnp.max(jnp.abs(last - before), axis=(0, 1))
+        vertices = jnp.moveaxis(last, -1, 0)
+        tol = self.rtol * energy.scale
+
+        def frame_info(residual, vertices, targets):
+            value = total_energy(energy, vertices, targets)
+            return SolveInfo(converged=honest(residual <= tol, vertices, value),
+                             iterations=jnp.asarray(self.iterations, jnp.int32), energy=value)
+
+        info = jax.vmap(frame_info)(residual, vertices, targets)
+        out = (vertices, info)
+        return out, jax.tree.map(lambda _: True, out)
 
     def fixed_steps(self, steps):
         return dataclasses.replace(self, iterations=check_steps(self, steps), stop_early=False,

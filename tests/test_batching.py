@@ -1,0 +1,123 @@
+"""The natural JAX spellings: `jax.jit(rig.deform)`, and `jax.vmap` of `solve`, `skin` and
+`deform` through their batching rules, which must give what JAX's own batching gives."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import mvcjax
+from mvcjax import _skinning
+from mvcjax._batching import with_batching_rule
+
+from conftest import directional_derivatives
+
+
+def some_frames(rig, count, seed=0, scale=8.0):
+    rng = np.random.default_rng(seed)
+    offsets = rng.normal(scale=scale, size=(count, *rig.handle_positions.shape))
+    return rig.handle_positions[None] + jnp.asarray(offsets, rig.handle_positions.dtype)
+
+
+def test_jit_of_the_bound_methods_works_and_compiles_once(horse_rig):
+    frames = some_frames(horse_rig, 3)
+    deform = jax.jit(horse_rig.deform)
+    for t in frames:
+        np.testing.assert_allclose(deform(t), horse_rig.deform(t), atol=1e-9)
+    assert deform._cache_size() == 1  # new targets: no new program
+    # The rig as an argument: one program for every rig of these sizes.
+    np.testing.assert_allclose(jax.jit(mvcjax.Rig.deform)(horse_rig, frames[0]),
+                               deform(frames[0]), atol=1e-9)
+    control = jax.jit(horse_rig.solve)(frames[0])
+    np.testing.assert_allclose(control, horse_rig.solve(frames[0]), atol=1e-9)
+    np.testing.assert_allclose(jax.jit(horse_rig.skin)(control), horse_rig.skin(control),
+                               atol=1e-9)
+    renderer = mvcjax.Renderer.build(horse_rig, size=(24, 32))
+    np.testing.assert_allclose(jax.jit(renderer)(horse_rig.shape_mesh.vertices),
+                               renderer(horse_rig.shape_mesh.vertices), atol=1e-9)
+
+
+def test_equal_rigs_hash_equal(horse, horse_rig):
+    again = mvcjax.Rig.build(horse, mvcjax.datasets.horse_handles(), dtype=jnp.float64)
+    assert again == horse_rig and hash(again) == hash(horse_rig)
+    other = horse_rig.with_weights(mvcjax.Weights(length=3.0))
+    assert other != horse_rig  # same structure, other values: same bucket, not equal
+    assert hash(other) == hash(horse_rig)
+
+
+def test_vmap_of_deform_solve_and_skin_match_single_frames(horse_rig):
+    frames = some_frames(horse_rig, 5, seed=1)
+    shape = jax.jit(jax.vmap(horse_rig.deform))(frames)
+    control, info = jax.vmap(lambda t: horse_rig.solve(t, return_info=True))(frames)
+    skinned = jax.vmap(horse_rig.skin)(control)
+    for k, t in enumerate(frames):
+        one, one_info = horse_rig.solve(t, return_info=True)
+        np.testing.assert_allclose(control[k], one, atol=1e-9)
+        np.testing.assert_allclose(info.energy[k], one_info.energy, rtol=1e-9)
+        assert bool(info.converged[k]) == bool(one_info.converged)
+        assert int(info.iterations[k]) == int(one_info.iterations)
+        np.testing.assert_allclose(shape[k], horse_rig.deform(t), atol=1e-9)
+        np.testing.assert_allclose(skinned[k], horse_rig.skin(one), atol=1e-9)
+
+
+def test_vmap_takes_the_batching_rules(horse_rig, monkeypatch):
+    # The fixed-G rule steps the frames together; the skinning's maps over them, so that
+    # its conditionals stay conditionals (JAX's batching makes selects of them).
+    calls = []
+    rule = mvcjax.FixedG._iterate_frames
+    monkeypatch.setattr(mvcjax.FixedG, "_iterate_frames",
+                        lambda *a, **k: calls.append(1) or rule(*a, **k))
+    frames = some_frames(horse_rig, 2)
+    jax.make_jaxpr(jax.vmap(horse_rig.solve))(frames)
+    assert calls
+    control = jax.vmap(horse_rig.solve)(frames)
+    fast = jax.make_jaxpr(jax.vmap(horse_rig.skin))(control)
+    plain = jax.make_jaxpr(jax.vmap(lambda v: _skinning._skin(horse_rig.skinning, v)))(control)
+    assert "cond[" in str(fast) and "cond[" not in str(plain)
+
+
+def test_a_batch_of_rigs_falls_back_to_jax_batching(horse_rig):
+    # Rules are written for frames of one rig; rigs batched with their targets (here two
+    # term weightings) are batched by JAX, and agree with each rig alone.
+    rigs = [horse_rig, horse_rig.with_weights(mvcjax.Weights(length=4.0))]
+    both = jax.tree.map(lambda *x: jnp.stack(x), *rigs)
+    frames = some_frames(horse_rig, 2, seed=2)
+    out = jax.vmap(lambda r, t: r.deform(t))(both, frames)
+    for k in range(2):
+        np.testing.assert_allclose(out[k], rigs[k].deform(frames[k]), atol=1e-9)
+
+
+def test_gradients_through_vmap_match_finite_differences_in_both_modes(horse_rig):
+    frames = some_frames(horse_rig, 2, seed=4)
+
+    def batched(t):
+        return jnp.sum(jax.vmap(horse_rig.deform)(t)[:, ::50] ** 2)
+
+    exact, approx = directional_derivatives(jax.jit(batched), frames, h=1e-4)
+    assert exact == pytest.approx(approx, rel=1e-6)
+    # Forward mode through the rules' JVP agrees with reverse mode: <u, J d> = <J^T u, d>.
+    shapes = jax.vmap(horse_rig.deform)
+    d = jax.random.normal(jax.random.key(5), frames.shape, frames.dtype)
+    out, forward = jax.jit(lambda t, d: jax.jvp(shapes, (t,), (d,)))(frames, d)
+    u = jax.random.normal(jax.random.key(6), out.shape, out.dtype)
+    (reverse,) = jax.jit(lambda t, u: jax.vjp(shapes, t)[1](u))(frames, u)
+    assert float(jnp.sum(u * forward)) == pytest.approx(float(jnp.sum(reverse * d)), rel=1e-9)
+
+
+def test_with_batching_rule_declining_is_plain_vmap():
+    f = with_batching_rule(lambda x, y: jnp.sin(x) * y, lambda size, batched, x, y: None)
+    x, y = jnp.linspace(0, 1, 4), jnp.arange(4.0)
+    np.testing.assert_allclose(jax.vmap(f)(x, y), jnp.sin(x) * y)
+    np.testing.assert_allclose(jax.vmap(f, (0, None))(x, 2.0), 2 * jnp.sin(x))
+    np.testing.assert_allclose(jax.grad(lambda x: jnp.sum(jax.vmap(f)(x, y)))(x),
+                               jnp.cos(x) * y)
+
+
+def test_a_rule_runs_under_vmap_only_and_derivatives_follow_the_plain_function():
+    # A deliberately different rule shows which path ran.
+    f = with_batching_rule(lambda x: x**2, lambda size, batched, x: (x**2 + 1.0, True))
+    x = jnp.arange(3.0)
+    np.testing.assert_allclose(f(x[1]), 1.0)
+    np.testing.assert_allclose(jax.vmap(f)(x), x**2 + 1.0)
+    np.testing.assert_allclose(jax.vmap(jax.grad(f))(x), 2 * x)
+    np.testing.assert_allclose(jax.jacfwd(f)(2.0), 4.0)
