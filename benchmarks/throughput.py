@@ -8,9 +8,8 @@ Three parts, float32, FixedG (15 iterations, the paper's), in one run:
   numpy's `np.copyto` of the same array; the larger is the floor's bandwidth.
 - frame: for each shape mesh (about 6k, 20k, 64k and 100k vertices) and skinning
   ("blended", the default, and the paper's "mvc"), the median time of a compiled frame,
-  `jax.jit(rig.deform)` (the rig's arrays constants of the program; where that spelling
-  raises, its error, and `jax.jit(lambda t: rig.deform(t))`, the same program), of the
-  frame with the rig as an argument, and of the skinning alone. The
+  `jax.jit(rig.deform)` (the rig's arrays constants of the program), of the frame with
+  the rig as an argument, and of the skinning alone. The
   frame's memory floor is the bytes it must stream (the skinning's arrays and the
   solver's `G` read once, the vertices it writes) over the measured
   bandwidth; the fraction of the floor reached is floor / time.
@@ -110,27 +109,17 @@ def run_frames(shape, handles, sizes, repeats: int, bandwidth: float) -> list[di
         for skinning in SKINNINGS:
             rig = _rig(shape, handles, target, skinning)
             targets = _targets(rig, 16)
-            try:  # the documented fastest frame: the rig's arrays constants of the program
-                frame = jax.jit(rig.deform)
-                compile_frame = compile_ms(frame, targets[0])
-                spelling = "jax.jit(rig.deform)"
-            except TypeError as error:  # where that spelling fails: its error, and the
-                # same program spelt as the issue found to work
-                bound_error = f"{type(error).__name__}: {error}"[:200]
-                frame = jax.jit(lambda t, r=rig: r.deform(t))
-                compile_frame = compile_ms(frame, targets[0])
-                spelling = "jax.jit(lambda t: rig.deform(t))"
+            frame = jax.jit(rig.deform)  # the documented fastest: the rig's arrays constants
             argument = jax.jit(lambda r, t: r.deform(t))
-            skin_fn = jax.jit(lambda v, r=rig: r.skin(v))
-            control = [jax.jit(lambda t, r=rig: r.solve(t))(t) for t in targets]
+            skin_fn, solve = jax.jit(rig.skin), jax.jit(rig.solve)
+            control = [solve(t) for t in targets]
             row = {
                 "target_shape_vertices": target,
                 "skinning": skinning,
                 "shape_vertices": int(rig.shape_mesh.vertices.shape[0]),
                 "control_vertices": int(rig.control_mesh.vertices.shape[0]),
                 "skin_row_width": int(rig.skinning.indices.shape[-1]),
-                "frame_spelling": spelling,
-                "compile_ms": compile_frame,
+                "compile_ms": compile_ms(frame, targets[0]),
                 "frame_ms": median_ms(frame, [(t,) for t in targets], repeats),
                 "rig_argument_compile_ms": compile_ms(argument, rig, targets[0]),
                 "frame_rig_argument_ms": median_ms(argument, [(rig, t) for t in targets],
@@ -138,8 +127,6 @@ def run_frames(shape, handles, sizes, repeats: int, bandwidth: float) -> list[di
                 "skin_ms": median_ms(skin_fn, [(v,) for v in control], repeats),
                 "stream_bytes": _stream_bytes(rig),
             }
-            if spelling != "jax.jit(rig.deform)":
-                row["jit_bound_method_error"] = bound_error
             row["floor_ms"] = row["stream_bytes"] / bandwidth * 1e3
             row["fraction_of_floor"] = row["floor_ms"] / row["frame_ms"]
             goal = TARGET_FRAME_MS.get(target)
@@ -149,7 +136,7 @@ def run_frames(shape, handles, sizes, repeats: int, bandwidth: float) -> list[di
             rows.append(row)
             print(f"V_S={row['shape_vertices']:>6} {skinning:>8} (width "
                   f"{row['skin_row_width']}): frame {row['frame_ms']:.3f} ms "
-                  f"({spelling}; rig as argument {row['frame_rig_argument_ms']:.3f} ms), skin "
+                  f"(rig as argument {row['frame_rig_argument_ms']:.3f} ms), skin "
                   f"{row['skin_ms']:.3f} ms, floor {row['floor_ms']:.3f} ms "
                   f"({row['fraction_of_floor']:.0%}), compile {row['compile_ms']:.0f} ms "
                   f"(rig as argument {row['rig_argument_compile_ms']:.0f} ms)", flush=True)
@@ -168,21 +155,14 @@ def _batch_paths(rig, batches):
 
     import mvcjax
 
-    def jit(method):
-        try:
-            hash(method)
-        except TypeError:  # where bound methods did not hash: the same closure
-            return jax.jit(lambda *a: method(*a))
-        return jax.jit(method)
-
-    single = jit(rig.deform)
-    solve = jit(rig.solve)
+    single = jax.jit(rig.deform)
+    solve = jax.jit(rig.solve)
     controls = [jax.vmap(solve)(b) for b in batches]
     return {
         "vmap_deform": (jax.jit(jax.vmap(rig.deform)), single, batches),
         "deform_frames": (lambda b: mvcjax.deform_frames(rig, b), single, batches),
         "vmap_solve": (jax.jit(jax.vmap(rig.solve)), solve, batches),
-        "vmap_skin": (jax.jit(jax.vmap(rig.skin)), jit(rig.skin), controls),
+        "vmap_skin": (jax.jit(jax.vmap(rig.skin)), jax.jit(rig.skin), controls),
     }
 
 

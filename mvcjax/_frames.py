@@ -71,9 +71,9 @@ def deform_frames(
     One compiled program (cached by shapes and solver, like any `jit`) runs the frames
     `chunk` at a time, each chunk `jax.vmap(rig.deform)`: a plain `FixedG` (the default)
     steps the chunk's frames together, frames last, and the skinning maps over them;
-    any other solver is vmapped as JAX does. With several
-    devices the frames are split between them (`jax.shard_map`, the rig replicated) and
-    the result comes back in frame order.
+    any other solver is vmapped as JAX does. With several devices the frames are split
+    between them (`jax.shard_map`, the rig replicated) and the result comes back in
+    frame order.
 
     Args:
         rig: the rig.
