@@ -31,6 +31,7 @@ from ._factor import (
 from ._frames import deform_frames as deform_frames
 from ._handles import Bone as Bone, Handles as Handles
 from ._image import image_mask as image_mask, load_image as load_image
+from ._interact import Posing as Posing, interact as interact
 from ._metrics import (
     difference as difference,
     flipped_triangles as flipped_triangles,

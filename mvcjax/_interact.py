@@ -1,0 +1,429 @@
+"""Interact: drag a rig's handles with the mouse, and the shape (or its picture) follows.
+
+A `Posing` owns one matplotlib axes. Its solve, skin and (with a picture) render are one
+compiled program, called with new targets on every mouse move; shapes never change, so
+it compiles once. The figure is updated by blitting: the static parts (axes, rest
+outline) are drawn once and kept as a bitmap, and each move restores that bitmap, draws
+only the moving artists and copies the axes' box to the screen. A full redraw of a
+figure costs tens of milliseconds; a blit a few.
+
+Any interactive matplotlib backend works: a desktop window (`QtAgg`, `TkAgg`, `MacOSX`)
+or Jupyter through ipympl (`%matplotlib widget`). Canvases that cannot blit (the inline
+backend's) fall back to `draw_idle`, which is slower but correct; the inline backend
+draws a still picture only, so nothing can be dragged there.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ._frames import deform_frames
+from ._render import Renderer, fit_window
+from ._rig import Rig
+from ._solvers import AbstractSolver, FixedG
+from ._topology import boundary_loops
+
+_HANDLE_STYLE = {"marker": "o", "markersize": 9, "color": "tab:red", "markeredgecolor": "white",
+                 "markeredgewidth": 1.2, "linestyle": "none"}
+_ADD_HINT = ("adding or removing a handle changes the control mesh: rebuild with "
+             "mvcjax.Rig.build(shape, handles) and call mvcjax.interact again")
+
+
+@eqx.filter_jit
+def _pose(rig: Rig, renderer: Renderer | None, solver: AbstractSolver,
+          targets: Float[Array, "h 2"]):
+    """The control and shape meshes for these targets and, with a renderer, the picture as
+    `uint8` RGBA (a quarter of the bytes to hand to matplotlib, which draws those fastest)."""
+    control = rig.solve(targets, solver)
+    shape = rig.skin(control)
+    if renderer is None:
+        return control, shape, None
+    picture = renderer(shape)
+    return control, shape, jnp.round(jnp.clip(picture, 0, 1) * 255).astype(jnp.uint8)
+
+
+def _outline_codes(loops: list[np.ndarray]) -> np.ndarray:
+    """Path codes of the shape's boundary loops as one compound path (holes cut out)."""
+    from matplotlib.path import Path
+
+    codes = []
+    for loop in loops:
+        part = np.full(len(loop) + 1, Path.LINETO, np.uint8)
+        part[0], part[-1] = Path.MOVETO, Path.CLOSEPOLY
+        codes.append(part)
+    return np.concatenate(codes)
+
+
+def _bone_lines(targets: np.ndarray, bones: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """x and y of every bone's segment between its two targets, NaN-separated (one line)."""
+    if len(bones) == 0:
+        return np.empty(0), np.empty(0)
+    segments = np.full((len(bones), 3, 2), np.nan)
+    segments[:, :2] = targets[bones]
+    return segments[..., 0].ravel(), segments[..., 1].ravel()
+
+
+class Posing:
+    """A live session posing a rig with the mouse; make one with `mvcjax.interact`.
+
+    Press on a red dot (a handle's target) and drag it: the shape follows while the mouse
+    moves. Right-click a dot to put it back at rest. The session keeps what a user wants
+    to keep: the current `targets`, the pose (`shape_vertices`), and, while recording,
+    every pose of a drag (`recorded`, `frames`, `write_animation`).
+
+    Attributes:
+        rig: the rig being posed.
+        renderer: draws the textured picture, or None to draw the shape filled.
+        solver: the solver of every update.
+        figure, axes: the matplotlib figure and axes it draws in.
+        targets: `(h, 2)` the current targets (numpy; a copy is kept by the session).
+        updates: how many poses were drawn.
+        update_seconds: the wall time of each update, from the mouse event to the blit.
+    """
+
+    def __init__(self, rig: Any, image: Any = None, *, ax: Any = None,
+                 solver: Any = FixedG(), size: Any = None, window: Any = None,
+                 margin: Any = 0.3, control_mesh: Any = True, record: Any = False,
+                 pick_radius: Any = 12.0, renderer: Any = None,
+                 **render_options: Any):
+        import matplotlib.pyplot as plt
+
+        if not isinstance(rig, Rig):
+            raise TypeError(f"rig must be an mvcjax.Rig (mvcjax.Rig.build(shape, handles)), "
+                            f"got {type(rig).__name__}.")
+        if not isinstance(solver, AbstractSolver):
+            raise TypeError(f"solver must be an mvcjax solver such as mvcjax.FixedG(), got "
+                            f"{solver!r}.")
+        if isinstance(pick_radius, bool) or not (isinstance(pick_radius, (int, float))
+                                                and pick_radius > 0):
+            raise ValueError(f"pick_radius must be a positive number of screen pixels, got "
+                             f"{pick_radius!r}.")
+        self.rig, self.solver = rig, solver
+        self._control_mesh_wanted = bool(control_mesh)
+        rest = np.asarray(rig.shape_mesh.vertices, np.float64)
+        self._rest_targets = np.asarray(rig.handle_positions, np.float64)
+        if window is None:
+            window = (renderer.window if renderer is not None
+                      else fit_window(np.concatenate([rest, self._rest_targets]),
+                                      size, margin=margin))
+        self.window = tuple(float(w) for w in np.asarray(window))
+        self._check_in_view()
+        if renderer is None and (image is not None or render_options or size is not None):
+            renderer = Renderer.build(rig, image, window=self.window,
+                                      size=size if size is not None else (384, 384),
+                                      **render_options)
+        elif renderer is not None and (image is not None or render_options):
+            raise ValueError("pass either renderer= or image= (and render options), not both.")
+        if renderer is not None and renderer.rest.shape != rig.shape_mesh.vertices.shape:
+            raise ValueError(f"renderer was built for a mesh of {renderer.rest.shape[0]} "
+                             f"vertices, the rig's shape mesh has "
+                             f"{rig.shape_mesh.vertices.shape[0]}; build it from this rig: "
+                             "mvcjax.Renderer.build(rig, image).")
+        self.renderer = renderer
+        self._dtype = np.dtype(rig.energy.rest.dtype)
+        self._pick_radius = float(pick_radius)
+        self._bones = np.asarray(rig.handles.bones, np.int64).reshape(-1, 2)
+        self._loops = boundary_loops(np.asarray(rig.shape_mesh.faces))
+        self._outline_index = np.concatenate([np.append(loop, loop[0]) for loop in self._loops])
+        self._control_edges = _edges(np.asarray(rig.control_mesh.faces))
+
+        self.targets = self._rest_targets.copy()
+        self.updates, self.update_seconds = 0, []
+        self._dragged: int | None = None
+        self._background = None
+        self._recording, self._recorded, self._times = bool(record), [], []
+
+        if ax is None:
+            _, ax = plt.subplots(figsize=(6, 6))
+        self.axes, self.figure = ax, ax.figure
+        self._draw_static(rest)
+        self._control_vertices, self._shape, self._picture = self._solve(self.targets)
+        self._draw_pose()
+        canvas = self.figure.canvas
+        self._connections = [
+            canvas.mpl_connect("draw_event", self._on_draw),
+            canvas.mpl_connect("button_press_event", self._on_press),
+            canvas.mpl_connect("motion_notify_event", self._on_motion),
+            canvas.mpl_connect("button_release_event", self._on_release),
+        ]
+        if self._recording:
+            self._record()
+
+    # ---- what the user keeps -----------------------------------------------------------
+
+    @property
+    def shape_vertices(self) -> np.ndarray:
+        """`(n, 2)` the deformed shape mesh of the current targets."""
+        return np.asarray(self._shape)
+
+    @property
+    def control_vertices(self) -> np.ndarray:
+        """`(c, 2)` the solved control mesh of the current targets."""
+        return np.asarray(self._control_vertices)
+
+    @property
+    def picture(self) -> np.ndarray | None:
+        """`(rows, cols, 4)` uint8 RGBA of the current pose, or None without a renderer."""
+        return None if self._picture is None else np.asarray(self._picture)
+
+    @property
+    def recording(self) -> bool:
+        """Whether every new pose is recorded (`record(True)` starts, `record(False)` stops)."""
+        return self._recording
+
+    def record(self, on: Any = True) -> None:
+        """Start (or stop) recording poses: each update appends the targets and the time."""
+        self._recording = bool(on)
+        if on and not self._recorded:
+            self._record()
+
+    def recorded(self, fps: Any = None) -> np.ndarray:
+        """`(frames, h, 2)` the recorded targets: one per update, or, with `fps`, sampled
+        at that rate from the recording's times (linear in between), so that an
+        animation replays the drag at the speed it was made."""
+        if not self._recorded:
+            raise ValueError("nothing was recorded: call posing.record() (or interact(..., "
+                             "record=True)) before dragging.")
+        targets = np.stack(self._recorded)
+        if fps is None:
+            return targets
+        if isinstance(fps, bool) or not (isinstance(fps, (int, float)) and fps > 0):
+            raise ValueError(f"fps must be a positive number of frames per second, got {fps!r}.")
+        times = np.asarray(self._times) - self._times[0]
+        count = max(1, int(np.floor(times[-1] * fps)) + 1)
+        at = np.arange(count) / fps
+        flat = targets.reshape(len(targets), -1)
+        sampled = np.stack([np.interp(at, times, column) for column in flat.T], axis=1)
+        return sampled.reshape(count, *targets.shape[1:])
+
+    def frames(self, fps: Any = None) -> Float[Array, "frames n 2"]:
+        """`(frames, n, 2)` the recorded poses of the shape mesh (`deform_frames` of
+        `recorded(fps)`), ready for `Renderer.frames` and `mvcjax.export`."""
+        return deform_frames(self.rig, self.recorded(fps).astype(self._dtype), self.solver)
+
+    def write_animation(self, path: Any, *, fps: Any = 30, **options: Any) -> None:
+        """Write the recorded drag as an animation file (GIF, PNG, WebP or MP4: see
+        `mvcjax.export.write_animation`, which gets `options`), replayed at `fps`, drawn by
+        the session's renderer or, without one, the shape filled with a checkerboard."""
+        from .export import write_animation
+
+        renderer = self.renderer
+        if renderer is None:
+            renderer = Renderer.build(self.rig, window=self.window, size=(384, 384))
+        write_animation(path, renderer.frames(self.frames(fps)), fps=fps, **options)
+
+    def set_targets(self, targets: Any) -> None:
+        """Move every target at once (e.g. from code, or to replay a pose) and redraw."""
+        targets = np.asarray(targets, np.float64)
+        if targets.shape != self.targets.shape or not np.all(np.isfinite(targets)):
+            raise ValueError(f"targets must be {self.targets.shape}, finite (x, y) per handle, "
+                             f"got shape {targets.shape}.")
+        self.targets = targets.copy()
+        self._update()
+
+    def reset(self) -> None:
+        """Every target back at rest."""
+        self.set_targets(self._rest_targets)
+
+    def disconnect(self) -> None:
+        """Stop listening to the mouse (the figure stays as it is)."""
+        for cid in self._connections:
+            self.figure.canvas.mpl_disconnect(cid)
+        self._connections = []
+
+    # ---- drawing -------------------------------------------------------------------------
+
+    def _check_in_view(self) -> None:
+        xmin, ymin, xmax, ymax = self.window
+        t = self._rest_targets
+        inside = (t[:, 0] >= xmin) & (t[:, 0] <= xmax) & (t[:, 1] >= ymin) & (t[:, 1] <= ymax)
+        if not inside.any():
+            raise ValueError(f"no handle of the rig lies in the window {self.window}, so none "
+                             "can be dragged; leave window= out (it then holds the shape and "
+                             "its handles) or pass one that holds them, e.g. "
+                             "mvcjax.fit_window(rig.handle_positions).")
+
+    def _draw_static(self, rest: np.ndarray) -> None:
+        ax = self.axes
+        xmin, ymin, xmax, ymax = self.window
+        ax.set_xlim(xmin, xmax)
+        ax.set_ylim(ymin, ymax)
+        ax.set_aspect("equal")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        outline = rest[self._outline_index]
+        breaks = np.cumsum([len(loop) + 1 for loop in self._loops])[:-1]
+        for part in np.split(outline, breaks):
+            ax.plot(part[:, 0], part[:, 1], color="0.75", linewidth=0.8, zorder=1)
+        ax.set_title("drag a red dot; right-click one to put it back", fontsize=9)
+        animated = {"animated": True}
+        if self.renderer is not None:
+            self._image = ax.imshow(np.zeros((*self.renderer.shape, 4), np.uint8),
+                                    extent=(xmin, xmax, ymin, ymax), origin="upper",
+                                    interpolation="bilinear", zorder=2, **animated)
+            self._patch = None
+        else:
+            from matplotlib.patches import PathPatch
+            from matplotlib.path import Path
+
+            self._image = None
+            self._codes = _outline_codes(self._loops)
+            self._patch = PathPatch(Path(outline, self._codes), facecolor="#f2b36b",
+                                    edgecolor="#7a4a1c", linewidth=1.0, zorder=2, **animated)
+            ax.add_patch(self._patch)
+        self._control = None
+        if self.renderer is None and len(self._control_edges) and self._control_mesh_wanted:
+            from matplotlib.collections import LineCollection
+
+            self._control = LineCollection([], colors="tab:blue", linewidths=0.5, alpha=0.6,
+                                           zorder=3, **animated)
+            ax.add_collection(self._control)
+        (self._bone_line,) = ax.plot([], [], "-", color="tab:red", linewidth=2.5, zorder=4,
+                                     **animated)
+        (self._handles,) = ax.plot([], [], zorder=5, **_HANDLE_STYLE, **animated)
+        self._status = ax.text(0.01, 0.01, "", transform=ax.transAxes, fontsize=8,
+                               color="0.3", zorder=6, **animated)
+
+    def _solve(self, targets: np.ndarray):
+        return jax.block_until_ready(_pose(self.rig, self.renderer, self.solver,
+                                           jnp.asarray(targets.astype(self._dtype))))
+
+    def _draw_pose(self) -> None:
+        shape = np.asarray(self._shape)
+        if self._image is not None:
+            self._image.set_data(np.asarray(self._picture))
+        else:
+            from matplotlib.path import Path
+
+            self._patch.set_path(Path(shape[self._outline_index], self._codes))
+        if self._control is not None:
+            control = np.asarray(self._control_vertices)
+            self._control.set_segments(control[self._control_edges])
+        self._handles.set_data(self.targets[:, 0], self.targets[:, 1])
+        self._bone_line.set_data(*_bone_lines(self.targets, self._bones))
+        if self.update_seconds:
+            ms = 1e3 * float(np.median(self.update_seconds[-30:]))
+            self._status.set_text(f"{ms:.0f} ms an update ({1e3 / ms:.0f} a second)")
+
+    def _artists(self):
+        return [a for a in (self._image, self._patch, self._control, self._bone_line,
+                            self._handles, self._status) if a is not None]
+
+    def _blit(self) -> None:
+        canvas = self.figure.canvas
+        if self._background is None or not getattr(canvas, "supports_blit", False):
+            canvas.draw_idle()
+            return
+        canvas.restore_region(self._background)
+        for artist in self._artists():
+            self.axes.draw_artist(artist)
+        canvas.blit(self.axes.bbox)
+
+    def _update(self) -> None:
+        start = time.perf_counter()
+        self._control_vertices, self._shape, self._picture = self._solve(self.targets)
+        self._draw_pose()
+        self._blit()
+        self.update_seconds.append(time.perf_counter() - start)
+        self.updates += 1
+        if self._recording:
+            self._record()
+
+    def _record(self) -> None:
+        self._recorded.append(self.targets.copy())
+        self._times.append(time.perf_counter())
+
+    # ---- mouse -----------------------------------------------------------------------------
+
+    def _on_draw(self, event) -> None:
+        # A full draw (first show, resize, zoom) renews the bitmap of the static parts.
+        canvas = self.figure.canvas
+        if getattr(canvas, "supports_blit", False):
+            self._background = canvas.copy_from_bbox(self.axes.bbox)
+            for artist in self._artists():
+                self.axes.draw_artist(artist)
+
+    def _nearest(self, event) -> int | None:
+        """The target under the mouse (within `pick_radius` screen pixels), or None."""
+        screen = self.axes.transData.transform(self.targets)
+        distance = np.hypot(screen[:, 0] - event.x, screen[:, 1] - event.y)
+        best = int(np.argmin(distance))
+        return best if distance[best] <= self._pick_radius else None
+
+    def _on_press(self, event) -> None:
+        if event.inaxes is not self.axes or self._toolbar_busy():
+            return
+        picked = self._nearest(event)
+        if event.button == 3:
+            if picked is None:
+                self._status.set_text(_ADD_HINT)
+                self._blit()
+            else:
+                self.targets[picked] = self._rest_targets[picked]
+                self._update()
+            return
+        if event.button == 1 and picked is not None:
+            self._dragged = picked
+
+    def _on_motion(self, event) -> None:
+        if self._dragged is None or event.inaxes is not self.axes or event.xdata is None:
+            return
+        self.targets[self._dragged] = (event.xdata, event.ydata)
+        self._update()
+
+    def _on_release(self, event) -> None:
+        self._dragged = None
+
+    def _toolbar_busy(self) -> bool:
+        # While the toolbar pans or zooms, presses belong to it.
+        toolbar = getattr(self.figure.canvas, "toolbar", None)
+        return bool(getattr(toolbar, "mode", ""))
+
+
+def _edges(faces: np.ndarray) -> np.ndarray:
+    """The unique edges `(e, 2)` of a triangle mesh."""
+    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    return np.unique(edges, axis=0)
+
+
+def interact(rig: Any, image: Any = None, **options: Any) -> Posing:
+    """Pose `rig` with the mouse: a figure in which dragging a handle moves the shape.
+
+    Press on a red dot (a handle's target) and drag; the shape, or its picture, follows
+    while the mouse moves. Right-click a dot to send it back to rest. Adding or removing
+    a handle changes the control mesh, so it needs a new rig: `Rig.build(shape, handles)`,
+    then `interact` again.
+
+    Needs an interactive matplotlib backend: in Jupyter, `pip install ipympl` and run
+    `%matplotlib widget` first; in a script, a desktop backend (the default one where a
+    display is available), then `plt.show()`.
+
+    Args:
+        rig: the rig to pose.
+        image: draw the shape textured by this picture (as `Renderer.build` takes it:
+            an array or a file path); None draws it filled, or, with `size` or other
+            render options, with a checkerboard.
+        ax: the matplotlib axes to draw in (default: a new 6 x 6 inch figure).
+        solver: the solver of every update (default: the paper's `FixedG()`).
+        size: `(rows, cols)` of the drawn picture, when there is one (default 384 x 384).
+        window: the rectangle `(xmin, ymin, xmax, ymax)` shown; default the rest shape
+            and its handles with `margin` of their size around them, room to drag in.
+        margin: see `window`.
+        control_mesh: draw the control mesh's edges over a filled shape.
+        record: record from the start (see `Posing.record`).
+        pick_radius: how near (in screen pixels) a press must be to a dot to grab it.
+        renderer: a `Renderer` built for this rig, instead of `image` and its options.
+        **render_options: more options of `Renderer.build` (`fill`, `alpha`, `depth`...).
+
+    Returns:
+        The `Posing`: keep it (it holds the figure's callbacks), read `targets` and
+        `shape_vertices`, and `frames()` / `write_animation()` a recorded drag.
+    """
+    return Posing(rig, image, **options)

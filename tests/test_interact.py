@@ -1,0 +1,197 @@
+"""Posing with the mouse, without a screen: synthesised press, motion and release events on
+an Agg canvas move a handle's target, redraw the shape by blitting, and never recompile."""
+
+import jax
+import matplotlib
+import numpy as np
+import pytest
+
+import mvcjax
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt
+from matplotlib.backend_bases import MouseEvent
+
+HEAD = 4  # the horse's head handle
+
+
+@pytest.fixture(autouse=True)
+def close_figures():
+    yield
+    plt.close("all")
+
+
+def mouse(posing, kind, point, button=1):
+    """A mouse event at a point of the plane, through the canvas as a backend sends it."""
+    x, y = posing.axes.transData.transform(np.asarray(point, np.float64))
+    MouseEvent(f"{kind}_event", posing.figure.canvas, x, y, button=button)._process()
+
+
+def drag(posing, handle, path):
+    mouse(posing, "button_press", posing.targets[handle])
+    for point in path:
+        mouse(posing, "motion_notify", point)
+    mouse(posing, "button_release", path[-1])
+
+
+class Compilations:
+    """Counts XLA compilations while active."""
+
+    def __init__(self):
+        self.count = 0
+
+    def __call__(self, event, duration, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            self.count += 1
+
+    def __enter__(self):
+        jax.monitoring.register_event_duration_secs_listener(self)
+        return self
+
+    def __exit__(self, *exc):
+        jax.monitoring.unregister_event_duration_listener(self)
+
+
+def started(posing):
+    posing.figure.canvas.draw()  # as a backend does when the figure is first shown
+    return posing
+
+
+def canvas_pixels(posing):
+    return np.asarray(posing.figure.canvas.buffer_rgba()).astype(np.int16)
+
+
+@pytest.mark.parametrize("textured", [False, True], ids=["filled", "textured"])
+def test_a_drag_moves_the_target_and_the_drawn_shape_without_recompiling(horse_rig, textured):
+    options = {"size": (64, 64)} if textured else {}
+    posing = started(mvcjax.interact(horse_rig, **options))
+    rest = posing.targets.copy()
+    before = canvas_pixels(posing)
+    start = rest[HEAD]
+    path = [start + step * np.array([4.0, 2.5]) for step in range(1, 6)]
+    with Compilations() as compiled:
+        drag(posing, HEAD, path)
+    assert compiled.count == 0
+    assert posing.updates == len(path)
+    np.testing.assert_allclose(posing.targets[HEAD], path[-1], atol=1e-6 * np.abs(start).max())
+    np.testing.assert_array_equal(np.delete(posing.targets, HEAD, 0), np.delete(rest, HEAD, 0))
+    expected = horse_rig.deform(posing.targets)
+    np.testing.assert_allclose(posing.shape_vertices, expected, atol=1e-9)
+    if textured:
+        picture = posing.renderer(expected)
+        np.testing.assert_allclose(posing.picture, np.round(np.asarray(picture) * 255), atol=1)
+        np.testing.assert_array_equal(posing._image.get_array(), posing.picture)
+    else:
+        outline = posing._patch.get_path().vertices
+        at_rest = np.asarray(horse_rig.shape_mesh.vertices)[posing._outline_index]
+        np.testing.assert_allclose(outline, np.asarray(expected)[posing._outline_index],
+                                   atol=1e-9)
+        assert np.abs(outline - at_rest).max() > 1.0
+    # What was blitted is what a full redraw draws: no artist left behind or stale.
+    blitted = canvas_pixels(posing)
+    assert np.abs(blitted - before).max() > 100
+    posing.figure.canvas.draw()
+    assert np.abs(canvas_pixels(posing) - blitted).max() <= 2
+
+
+def test_moves_after_release_or_away_from_handles_change_nothing(horse_rig):
+    posing = started(mvcjax.interact(horse_rig))
+    rest = posing.targets.copy()
+    drag(posing, HEAD, [rest[HEAD] + 10.0])
+    moved = posing.targets.copy()
+    mouse(posing, "motion_notify", rest[HEAD] + 30.0)  # released: not dragging any more
+    far = 0.5 * (rest[0] + rest[3])  # between two handles, far from both
+    mouse(posing, "button_press", far)
+    mouse(posing, "motion_notify", far + 20.0)
+    mouse(posing, "button_release", far + 20.0)
+    np.testing.assert_array_equal(posing.targets, moved)
+    assert posing.updates == 1
+
+
+def test_right_click_puts_a_handle_back_and_explains_adding_one(horse_rig):
+    posing = started(mvcjax.interact(horse_rig))
+    rest = posing.targets.copy()
+    drag(posing, HEAD, [rest[HEAD] + 15.0])
+    mouse(posing, "button_press", posing.targets[HEAD], button=3)
+    np.testing.assert_array_equal(posing.targets, rest)
+    np.testing.assert_allclose(posing.shape_vertices, horse_rig.shape_mesh.vertices, atol=1e-6)
+    mouse(posing, "button_press", 0.5 * (rest[0] + rest[3]), button=3)
+    assert "Rig.build" in posing._status.get_text()
+
+
+def test_bones_are_dragged_by_their_ends(horse):
+    rig = mvcjax.Rig.build(horse, [mvcjax.Bone((150.0, 170.0), (250.0, 170.0)),
+                                   (280.0, 20.0), (62.0, 20.0)])
+    posing = started(mvcjax.interact(rig))
+    end = posing.targets[1].copy()
+    drag(posing, 1, [end + np.array([0.0, 20.0])])
+    np.testing.assert_allclose(posing.targets[1], end + np.array([0.0, 20.0]), atol=1e-9)
+    x, y = posing._bone_line.get_data()
+    np.testing.assert_allclose([x[1], y[1]], posing.targets[1])
+    np.testing.assert_allclose(posing.shape_vertices, rig.deform(posing.targets), atol=1e-9)
+
+
+def test_a_recorded_drag_gives_frames_and_an_animation(horse_rig, tmp_path):
+    posing = started(mvcjax.interact(horse_rig, record=True))
+    start = posing.targets[HEAD].copy()
+    path = [start + np.array([3.0 * i, 0.0]) for i in range(1, 8)]
+    drag(posing, HEAD, path)
+    recorded = posing.recorded()
+    assert recorded.shape == (len(path) + 1, 5, 2)  # the rest pose, then each move
+    np.testing.assert_allclose(recorded[-1, HEAD], path[-1], atol=1e-9)
+    np.testing.assert_allclose(recorded[0], horse_rig.handle_positions)
+    # Resampled in time: the first and last poses kept, linear in between.
+    sampled = posing.recorded(fps=1000)
+    np.testing.assert_allclose(sampled[0], recorded[0])
+    assert np.all(np.diff(sampled[:, HEAD, 0]) >= -1e-9)
+    frames = posing.frames()
+    assert frames.shape == (len(recorded), horse_rig.shape_mesh.vertices.shape[0], 2)
+    np.testing.assert_allclose(frames[-1], horse_rig.deform(recorded[-1]), atol=1e-9)
+    path_gif = tmp_path / "drag.gif"
+    posing.write_animation(path_gif, fps=10)
+    assert path_gif.stat().st_size > 1000
+    posing.record(False)
+    drag(posing, HEAD, [start])
+    assert len(posing.recorded()) == len(recorded)
+
+
+def test_set_targets_and_reset(horse_rig):
+    posing = mvcjax.interact(horse_rig)
+    targets = np.asarray(horse_rig.handle_positions) + 5.0
+    posing.set_targets(targets)
+    np.testing.assert_allclose(posing.shape_vertices, horse_rig.deform(targets), atol=1e-9)
+    posing.reset()
+    np.testing.assert_allclose(posing.targets, horse_rig.handle_positions)
+    with pytest.raises(ValueError, match=r"targets must be \(5, 2\)"):
+        posing.set_targets(np.zeros((4, 2)))
+
+
+def test_it_draws_in_given_axes_at_any_placement_and_scale(horse):
+    shape = mvcjax.Shape.from_polygon(1e-3 * horse.outer + 1e3, [1e-3 * h + 1e3
+                                                                   for h in horse.holes])
+    handles = [1e-3 * np.asarray(h) + 1e3 for h in mvcjax.datasets.horse_handles()]
+    rig = mvcjax.Rig.build(shape, handles)
+    _, axes = plt.subplots(1, 2)
+    posing = started(mvcjax.interact(rig, ax=axes[1]))
+    assert posing.axes is axes[1]
+    start = posing.targets[HEAD].copy()
+    drag(posing, HEAD, [start + 0.01])
+    np.testing.assert_allclose(posing.targets[HEAD], start + 0.01, rtol=1e-9)
+    np.testing.assert_allclose(posing.shape_vertices, rig.deform(posing.targets), rtol=1e-6)
+
+
+def test_bad_input_says_what_to_do(horse_rig, horse):
+    with pytest.raises(TypeError, match="rig must be an mvcjax.Rig"):
+        mvcjax.interact(horse)
+    with pytest.raises(ValueError, match="no handle of the rig lies in the window"):
+        mvcjax.interact(horse_rig, window=(1e4, 1e4, 1e4 + 10, 1e4 + 10))
+    other = mvcjax.Renderer.build(mvcjax.Rig.build(horse, mvcjax.datasets.horse_handles(),
+                                                   shape_spacing=20.0), size=(16, 16))
+    with pytest.raises(ValueError, match="renderer was built for a mesh of"):
+        mvcjax.interact(horse_rig, renderer=other)
+    with pytest.raises(ValueError, match="pick_radius"):
+        mvcjax.interact(horse_rig, pick_radius=0)
+    posing = mvcjax.interact(horse_rig)
+    with pytest.raises(ValueError, match="nothing was recorded"):
+        posing.recorded()
