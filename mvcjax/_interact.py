@@ -8,8 +8,8 @@ only the moving artists and copies the axes' box to the screen. A full redraw of
 figure costs tens of milliseconds; a blit a few.
 
 Any interactive matplotlib backend works: a desktop window (`QtAgg`, `TkAgg`, `MacOSX`)
-or Jupyter through ipympl (`%matplotlib widget`). Canvases that cannot blit (the inline
-backend's) fall back to `draw_idle`, which is slower but correct; the inline backend
+or Jupyter through ipympl (`%matplotlib widget`). Canvases that cannot blit (vector
+backends) fall back to `draw_idle`, which is slower but correct; the inline backend
 draws a still picture only, so nothing can be dragged there.
 """
 
@@ -18,7 +18,6 @@ from __future__ import annotations
 import time
 from typing import Any
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -36,7 +35,6 @@ _ADD_HINT = ("adding or removing a handle changes the control mesh: rebuild with
              "mvcjax.Rig.build(shape, handles) and call mvcjax.interact again")
 
 
-@eqx.filter_jit
 def _pose(rig: Rig, renderer: Renderer | None, solver: AbstractSolver,
           targets: Float[Array, "h 2"]):
     """The control and shape meshes for these targets and, with a renderer, the picture as
@@ -61,12 +59,13 @@ def _outline_codes(loops: list[np.ndarray]) -> np.ndarray:
     return np.concatenate(codes)
 
 
-def _bone_lines(targets: np.ndarray, bones: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """x and y of every bone's segment between its two targets, NaN-separated (one line)."""
-    if len(bones) == 0:
+def _segments(points: np.ndarray, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """x and y of the segments between `points[pairs]`, NaN-separated: one Line2D draws
+    them all, and new data costs one array (a LineCollection builds a path per segment)."""
+    if len(pairs) == 0:
         return np.empty(0), np.empty(0)
-    segments = np.full((len(bones), 3, 2), np.nan)
-    segments[:, :2] = targets[bones]
+    segments = np.full((len(pairs), 3, 2), np.nan)
+    segments[:, :2] = points[pairs]
     return segments[..., 0].ravel(), segments[..., 1].ravel()
 
 
@@ -127,6 +126,8 @@ class Posing:
                              f"{rig.shape_mesh.vertices.shape[0]}; build it from this rig: "
                              "mvcjax.Renderer.build(rig, image).")
         self.renderer = renderer
+        # The rig, renderer and solver are constants of the session's one program.
+        self._pose = jax.jit(lambda t: _pose(rig, renderer, solver, t))
         self._dtype = np.dtype(rig.energy.rest.dtype)
         self._pick_radius = float(pick_radius)
         self._bones = np.asarray(rig.handles.bones, np.int64).reshape(-1, 2)
@@ -208,13 +209,16 @@ class Posing:
         `recorded(fps)`), ready for `Renderer.frames` and `mvcjax.export`."""
         return deform_frames(self.rig, self.recorded(fps).astype(self._dtype), self.solver)
 
-    def write_animation(self, path: Any, *, fps: Any = 30, **options: Any) -> None:
+    def write_animation(self, path: Any, *, fps: Any = 30, renderer: Any = None,
+                        **options: Any) -> None:
         """Write the recorded drag as an animation file (GIF, PNG, WebP or MP4: see
-        `mvcjax.export.write_animation`, which gets `options`), replayed at `fps`, drawn by
-        the session's renderer or, without one, the shape filled with a checkerboard."""
+        `mvcjax.export.write_animation`, which gets `options`), replayed at `fps`.
+
+        Drawn by `renderer`, or the session's, or, without one, the shape filled with a
+        checkerboard at 384 x 384 pixels in the session's window."""
         from .export import write_animation
 
-        renderer = self.renderer
+        renderer = renderer if renderer is not None else self.renderer
         if renderer is None:
             renderer = Renderer.build(self.rig, window=self.window, size=(384, 384))
         write_animation(path, renderer.frames(self.frames(fps)), fps=fps, **options)
@@ -280,20 +284,18 @@ class Posing:
             ax.add_patch(self._patch)
         self._control = None
         if self.renderer is None and len(self._control_edges) and self._control_mesh_wanted:
-            from matplotlib.collections import LineCollection
-
-            self._control = LineCollection([], colors="tab:blue", linewidths=0.5, alpha=0.6,
-                                           zorder=3, **animated)
-            ax.add_collection(self._control)
+            (self._control,) = ax.plot([], [], "-", color="tab:blue", linewidth=0.5,
+                                       alpha=0.6, zorder=3, **animated)
         (self._bone_line,) = ax.plot([], [], "-", color="tab:red", linewidth=2.5, zorder=4,
                                      **animated)
         (self._handles,) = ax.plot([], [], zorder=5, **_HANDLE_STYLE, **animated)
+        # Hints only: a text that changes on every update (a rate, say) costs milliseconds
+        # of glyphs each time.
         self._status = ax.text(0.01, 0.01, "", transform=ax.transAxes, fontsize=8,
                                color="0.3", zorder=6, **animated)
 
     def _solve(self, targets: np.ndarray):
-        return jax.block_until_ready(_pose(self.rig, self.renderer, self.solver,
-                                           jnp.asarray(targets.astype(self._dtype))))
+        return jax.block_until_ready(self._pose(jnp.asarray(targets.astype(self._dtype))))
 
     def _draw_pose(self) -> None:
         shape = np.asarray(self._shape)
@@ -304,13 +306,10 @@ class Posing:
 
             self._patch.set_path(Path(shape[self._outline_index], self._codes))
         if self._control is not None:
-            control = np.asarray(self._control_vertices)
-            self._control.set_segments(control[self._control_edges])
+            self._control.set_data(*_segments(np.asarray(self._control_vertices),
+                                              self._control_edges))
         self._handles.set_data(self.targets[:, 0], self.targets[:, 1])
-        self._bone_line.set_data(*_bone_lines(self.targets, self._bones))
-        if self.update_seconds:
-            ms = 1e3 * float(np.median(self.update_seconds[-30:]))
-            self._status.set_text(f"{ms:.0f} ms an update ({1e3 / ms:.0f} a second)")
+        self._bone_line.set_data(*_segments(self.targets, self._bones))
 
     def _artists(self):
         return [a for a in (self._image, self._patch, self._control, self._bone_line,
@@ -318,7 +317,7 @@ class Posing:
 
     def _blit(self) -> None:
         canvas = self.figure.canvas
-        if self._background is None or not getattr(canvas, "supports_blit", False):
+        if self._background is None or not _can_blit(canvas):
             canvas.draw_idle()
             return
         canvas.restore_region(self._background)
@@ -345,7 +344,7 @@ class Posing:
     def _on_draw(self, event) -> None:
         # A full draw (first show, resize, zoom) renews the bitmap of the static parts.
         canvas = self.figure.canvas
-        if getattr(canvas, "supports_blit", False):
+        if _can_blit(canvas):
             self._background = canvas.copy_from_bbox(self.axes.bbox)
             for artist in self._artists():
                 self.axes.draw_artist(artist)
@@ -385,6 +384,13 @@ class Posing:
         # While the toolbar pans or zooms, presses belong to it.
         toolbar = getattr(self.figure.canvas, "toolbar", None)
         return bool(getattr(toolbar, "mode", ""))
+
+
+def _can_blit(canvas) -> bool:
+    # Agg-based canvases can. ipympl's (webagg's) reports supports_blit = False, because
+    # matplotlib's own widgets met problems there (matplotlib#19762), yet it has the Agg
+    # buffer's copy and restore, and its blit sends the changed pixels to the browser.
+    return hasattr(canvas, "copy_from_bbox") and hasattr(canvas, "restore_region")
 
 
 def _edges(faces: np.ndarray) -> np.ndarray:

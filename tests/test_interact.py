@@ -149,7 +149,8 @@ def test_a_recorded_drag_gives_frames_and_an_animation(horse_rig, tmp_path):
     assert frames.shape == (len(recorded), horse_rig.shape_mesh.vertices.shape[0], 2)
     np.testing.assert_allclose(frames[-1], horse_rig.deform(recorded[-1]), atol=1e-9)
     path_gif = tmp_path / "drag.gif"
-    posing.write_animation(path_gif, fps=10)
+    posing.write_animation(path_gif, fps=10,
+                           renderer=mvcjax.Renderer.build(horse_rig, size=(32, 32)))
     assert path_gif.stat().st_size > 1000
     posing.record(False)
     drag(posing, HEAD, [start])
@@ -195,3 +196,22 @@ def test_bad_input_says_what_to_do(horse_rig, horse):
     posing = mvcjax.interact(horse_rig)
     with pytest.raises(ValueError, match="nothing was recorded"):
         posing.recorded()
+
+
+# ipympl's toolbar, built outside a kernel, passes traitlets an argument it deprecates.
+@pytest.mark.filterwarnings("ignore:Passing unrecognized arguments:DeprecationWarning")
+def test_jupyter_widget_canvases_are_blitted(horse_rig):
+    # ipympl's canvas (`%matplotlib widget`) reports supports_blit = False; it can blit,
+    # and a blit there sends the changed pixels to the browser.
+    from ipympl.backend_nbagg import _Backend_ipympl
+    from matplotlib.figure import Figure
+
+    figure = Figure()
+    _Backend_ipympl.new_figure_manager_given_figure(1, figure)
+    posing = started(mvcjax.interact(horse_rig, ax=figure.add_subplot()))
+    canvas = posing.figure.canvas
+    blits, draws = [], []
+    canvas.blit = lambda bbox=None: blits.append(bbox)
+    canvas.draw_idle = lambda: draws.append(1)
+    drag(posing, HEAD, [posing.targets[HEAD] + 5.0, posing.targets[HEAD] + 9.0])
+    assert len(blits) == posing.updates == 2 and not draws
