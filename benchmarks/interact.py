@@ -3,7 +3,8 @@ canvas (no screen), mesh only and textured.
 
 For each shape mesh (about 6k vertices by default) and each way of drawing (the shape
 filled with its control mesh over it, and textured by a `Renderer` of `--size` pixels),
-a figure is made and drawn once, a press lands on the head's handle, and `--moves`
+a 6 x 6 inch figure at 100 dpi is made and drawn once (the picture rendered at the axes'
+size in pixels, as `interact` does by default), a press lands on the head's handle, and `--moves`
 synthesised motion events drag it along a circle, each event going through the canvas as
 a backend would send it. An update is the whole handling of one event: the compiled
 solve, skin (and render), the artists' new data and the blit. Reported: the median
@@ -52,7 +53,9 @@ def run(rig, mode: str, size: int, moves: int) -> dict:
 
     import mvcjax
 
-    options = {"size": (size, size)} if mode == "textured" else {}
+    options = {}
+    if mode == "textured":
+        options = {"size": (size, size)} if size else {"fill": "checkerboard"}
     t0 = time.perf_counter()
     posing = mvcjax.interact(rig, **options)
     first_ms = (time.perf_counter() - t0) * 1e3
@@ -84,7 +87,8 @@ def run(rig, mode: str, size: int, moves: int) -> dict:
     row = {
         "mode": mode,
         "shape_vertices": int(rig.shape_mesh.vertices.shape[0]),
-        "size": f"{size}x{size}" if mode == "textured" else None,
+        "size": ("{}x{}".format(*posing.renderer.shape) if posing.renderer is not None
+                 else None),
         "moves": moves,
         "updates": posing.updates,
         "update_ms": update_ms,
@@ -107,7 +111,8 @@ def main(argv=None) -> int:
     parser.add_argument("--quick", action="store_true", help="a small mesh, few moves (CI)")
     parser.add_argument("--json", help="write the rows to this JSON file")
     parser.add_argument("--vertices", type=int, nargs="*", help="shape-mesh sizes")
-    parser.add_argument("--size", type=int, default=384, help="textured picture's side")
+    parser.add_argument("--size", type=int,
+                        help="textured picture's side (default: the axes' size in pixels)")
     parser.add_argument("--moves", type=int, help="motion events per drag")
     args = parser.parse_args(argv)
     import matplotlib

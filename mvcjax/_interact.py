@@ -15,6 +15,7 @@ draws a still picture only, so nothing can be dragged there.
 
 from __future__ import annotations
 
+import functools
 import time
 from typing import Any
 
@@ -114,9 +115,13 @@ class Posing:
                                       size, margin=margin))
         self.window = tuple(float(w) for w in np.asarray(window))
         self._check_in_view()
+        if ax is None:
+            _, ax = plt.subplots(figsize=(6, 6))
+        self.axes, self.figure = ax, ax.figure
+        _show_window(ax, self.window)
         if renderer is None and (image is not None or render_options or size is not None):
             renderer = Renderer.build(rig, image, window=self.window,
-                                      size=size if size is not None else (384, 384),
+                                      size=size if size is not None else _pixels(ax),
                                       **render_options)
         elif renderer is not None and (image is not None or render_options):
             raise ValueError("pass either renderer= or image= (and render options), not both.")
@@ -141,9 +146,6 @@ class Posing:
         self._background = None
         self._recording, self._recorded, self._times = bool(record), [], []
 
-        if ax is None:
-            _, ax = plt.subplots(figsize=(6, 6))
-        self.axes, self.figure = ax, ax.figure
         self._draw_static(rest)
         self._control_vertices, self._shape, self._picture = self._solve(self.targets)
         self._draw_pose()
@@ -257,11 +259,6 @@ class Posing:
     def _draw_static(self, rest: np.ndarray) -> None:
         ax = self.axes
         xmin, ymin, xmax, ymax = self.window
-        ax.set_xlim(xmin, xmax)
-        ax.set_ylim(ymin, ymax)
-        ax.set_aspect("equal")
-        ax.set_xticks([])
-        ax.set_yticks([])
         outline = rest[self._outline_index]
         breaks = np.cumsum([len(loop) + 1 for loop in self._loops])[:-1]
         for part in np.split(outline, breaks):
@@ -269,9 +266,10 @@ class Posing:
         ax.set_title("drag a red dot; right-click one to put it back", fontsize=9)
         animated = {"animated": True}
         if self.renderer is not None:
-            self._image = ax.imshow(np.zeros((*self.renderer.shape, 4), np.uint8),
-                                    extent=(xmin, xmax, ymin, ymax), origin="upper",
-                                    interpolation="bilinear", zorder=2, **animated)
+            self._image = _picture_class()(ax, extent=(xmin, xmax, ymin, ymax), origin="upper",
+                                   interpolation="bilinear", zorder=2, **animated)
+            self._image.set_data(np.zeros((*self.renderer.shape, 4), np.uint8))
+            ax.add_image(self._image)
             self._patch = None
         else:
             from matplotlib.patches import PathPatch
@@ -384,6 +382,53 @@ class Posing:
         # While the toolbar pans or zooms, presses belong to it.
         toolbar = getattr(self.figure.canvas, "toolbar", None)
         return bool(getattr(toolbar, "mode", ""))
+
+
+def _show_window(ax, window) -> None:
+    xmin, ymin, xmax, ymax = window
+    ax.set_xlim(xmin, xmax)
+    ax.set_ylim(ymin, ymax)
+    ax.set_aspect("equal")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    ax.apply_aspect()
+
+
+def _pixels(ax) -> tuple[int, int]:
+    """`(rows, cols)`: the axes' box on the canvas, in pixels."""
+    box = ax.get_window_extent()
+    return max(1, round(box.height)), max(1, round(box.width))
+
+
+@functools.cache
+def _picture_class():
+    # Made on first use: importing matplotlib's image module costs `import mvcjax` 20%.
+    from matplotlib.image import AxesImage
+
+    class Picture(AxesImage):
+        """A picture drawn pixel for pixel when it was rendered for the axes as they are
+        (their size in pixels, their view): matplotlib's resampling of an image costs
+        more than rendering it. Resampled as any image otherwise (after a resize, a zoom
+        or a save at another dpi)."""
+
+        def draw(self, renderer, *args, **kwargs):
+            picture = self.get_array()
+            box = self.axes.bbox
+            extent = self.get_extent()
+            view = self.axes.viewLim
+            as_made = (picture.shape[:2] == (round(box.height), round(box.width))
+                       and np.allclose([view.x0, view.x1, view.y0, view.y1], extent,
+                                       rtol=0, atol=1e-9 * max(1.0, np.abs(extent).max())))
+            if not (as_made and self.get_visible()):
+                return super().draw(renderer, *args, **kwargs)
+            gc = renderer.new_gc()
+            gc.set_clip_rectangle(box)
+            # Agg puts an array's first row at the bottom; the picture's is its top.
+            renderer.draw_image(gc, round(box.x0), round(box.y0), np.asarray(picture)[::-1])
+            gc.restore()
+            self.stale = False
+
+    return Picture
 
 
 def _can_blit(canvas) -> bool:
