@@ -72,6 +72,25 @@ plot.plot_deformation(rig, deformed, targets, ax)
 plt.show()
 
 # %% [markdown]
+# ## Drag them with the mouse
+# `mvcjax.interact(rig)` opens a figure in which every handle's target is a red dot:
+# press on one and drag, and the horse follows while the mouse moves (a right-click
+# puts a dot back). In Jupyter it needs ipympl: `pip install 'mvcjax[widget]'`, then run
+# `%matplotlib widget` in a cell first; in a script, a desktop window opens at
+# `plt.show()`. This notebook was run with the inline backend, which stores a still
+# picture, so the cell below moves the targets from code instead of the mouse.
+# The session keeps the pose (`posing.targets`, `posing.shape_vertices`) and, with
+# `record=True`, the whole drag (`posing.write_animation("drag.gif")`).
+
+# %%
+posing = mvcjax.interact(rig, record=True)
+posing.set_targets(targets)  # where a drag of the dots would leave them
+print(posing.targets.round(1))
+print("the pose is rig.deform(targets):",
+      bool(np.allclose(posing.shape_vertices, deformed, atol=1e-3)))
+plt.show()
+
+# %% [markdown]
 # ## Bones: pose with segments
 # A handle can also be a bone, `mvcjax.Bone(start, end)`: the shape along the segment
 # follows it as a rigid segment (or stretches with it: `Bone(start, end, stretch=True)`).
