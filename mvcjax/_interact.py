@@ -25,7 +25,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._frames import deform_frames
-from ._render import Renderer, fit_window
+from ._render import Renderer, _window, fit_window
 from ._rig import Rig
 from ._solvers import AbstractSolver, FixedG
 from ._topology import boundary_loops
@@ -105,6 +105,12 @@ class Posing:
                                                 and pick_radius > 0):
             raise ValueError(f"pick_radius must be a positive number of screen pixels, got "
                              f"{pick_radius!r}.")
+        if isinstance(margin, bool) or not (isinstance(margin, (int, float)) and margin >= 0):
+            raise ValueError(f"margin must be a number >= 0 (a fraction of the shape's size), "
+                             f"got {margin!r}.")
+        if ax is not None and not hasattr(ax, "transData"):
+            raise TypeError(f"ax must be matplotlib axes (e.g. plt.subplots()[1]), got "
+                            f"{type(ax).__name__}.")
         self.rig, self.solver = rig, solver
         self._control_mesh_wanted = bool(control_mesh)
         rest = np.asarray(rig.shape_mesh.vertices, np.float64)
@@ -113,7 +119,7 @@ class Posing:
             window = (renderer.window if renderer is not None
                       else fit_window(np.concatenate([rest, self._rest_targets]),
                                       size, margin=margin))
-        self.window = tuple(float(w) for w in np.asarray(window))
+        self.window = tuple(float(w) for w in _window(window, "window"))
         self._check_in_view()
         if ax is None:
             _, ax = plt.subplots(figsize=(6, 6))
@@ -444,7 +450,10 @@ def _edges(faces: np.ndarray) -> np.ndarray:
     return np.unique(edges, axis=0)
 
 
-def interact(rig: Any, image: Any = None, **options: Any) -> Posing:
+def interact(rig: Any, image: Any = None, *, ax: Any = None, solver: Any = FixedG(),
+             size: Any = None, window: Any = None, margin: Any = 0.3,
+             control_mesh: Any = True, record: Any = False, pick_radius: Any = 12.0,
+             renderer: Any = None, **render_options: Any) -> Posing:
     """Pose `rig` with the mouse: a figure in which dragging a handle moves the shape.
 
     Press on a red dot (a handle's target) and drag; the shape, or its picture, follows
@@ -463,7 +472,8 @@ def interact(rig: Any, image: Any = None, **options: Any) -> Posing:
             render options, with a checkerboard.
         ax: the matplotlib axes to draw in (default: a new 6 x 6 inch figure).
         solver: the solver of every update (default: the paper's `FixedG()`).
-        size: `(rows, cols)` of the drawn picture, when there is one (default 384 x 384).
+        size: `(rows, cols)` of the drawn picture, when there is one. Default: the axes'
+            size in pixels, which draws fastest (the picture is copied pixel for pixel).
         window: the rectangle `(xmin, ymin, xmax, ymax)` shown; default the rest shape
             and its handles with `margin` of their size around them, room to drag in.
         margin: see `window`.
@@ -477,4 +487,6 @@ def interact(rig: Any, image: Any = None, **options: Any) -> Posing:
         The `Posing`: keep it (it holds the figure's callbacks), read `targets` and
         `shape_vertices`, and `frames()` / `write_animation()` a recorded drag.
     """
-    return Posing(rig, image, **options)
+    return Posing(rig, image, ax=ax, solver=solver, size=size, window=window, margin=margin,
+                  control_mesh=control_mesh, record=record, pick_radius=pick_radius,
+                  renderer=renderer, **render_options)

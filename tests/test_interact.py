@@ -197,6 +197,12 @@ def test_bad_input_says_what_to_do(horse_rig, horse):
         mvcjax.interact(horse_rig, renderer=other)
     with pytest.raises(ValueError, match="pick_radius"):
         mvcjax.interact(horse_rig, pick_radius=0)
+    with pytest.raises(ValueError, match="margin must be a number"):
+        mvcjax.interact(horse_rig, margin="wide")
+    with pytest.raises(ValueError, match=r"window must be \(xmin, ymin, xmax, ymax\)"):
+        mvcjax.interact(horse_rig, window=(0, 0, -1, 1))
+    with pytest.raises(TypeError, match="ax must be matplotlib axes"):
+        mvcjax.interact(horse_rig, ax="left")
     posing = mvcjax.interact(horse_rig)
     with pytest.raises(ValueError, match="nothing was recorded"):
         posing.recorded()
