@@ -32,8 +32,8 @@ from ._topology import boundary_loops
 
 _HANDLE_STYLE = {"marker": "o", "markersize": 9, "color": "tab:red", "markeredgecolor": "white",
                  "markeredgewidth": 1.2, "linestyle": "none"}
-_ADD_HINT = ("adding or removing a handle changes the control mesh: rebuild with "
-             "mvcjax.Rig.build(shape, handles) and call mvcjax.interact again")
+_ADD_HINT = ("adding or removing a handle needs a new rig:\n"
+             "mvcjax.Rig.build(shape, handles), then interact again")
 
 
 def _pose(rig: Rig, renderer: Renderer | None, solver: AbstractSolver,
@@ -223,12 +223,12 @@ class Posing:
         `mvcjax.export.write_animation`, which gets `options`), replayed at `fps`.
 
         Drawn by `renderer`, or the session's, or, without one, the shape filled with a
-        checkerboard at 384 x 384 pixels in the session's window."""
+        checkerboard in the session's window, 512 pixels along its longer side."""
         from .export import write_animation
 
         renderer = renderer if renderer is not None else self.renderer
         if renderer is None:
-            renderer = Renderer.build(self.rig, window=self.window, size=(384, 384))
+            renderer = Renderer.build(self.rig, window=self.window)
         write_animation(path, renderer.frames(self.frames(fps)), fps=fps, **options)
 
     def set_targets(self, targets: Any) -> None:
@@ -374,6 +374,7 @@ class Posing:
             return
         if event.button == 1 and picked is not None:
             self._dragged = picked
+            self._status.set_text("")  # a hint goes with the next drag
 
     def _on_motion(self, event) -> None:
         if self._dragged is None or event.inaxes is not self.axes or event.xdata is None:

@@ -122,6 +122,8 @@ def test_right_click_puts_a_handle_back_and_explains_adding_one(horse_rig):
     np.testing.assert_allclose(posing.shape_vertices, horse_rig.shape_mesh.vertices, atol=1e-6)
     mouse(posing, "button_press", 0.5 * (rest[0] + rest[3]), button=3)
     assert "Rig.build" in posing._status.get_text()
+    drag(posing, HEAD, [rest[HEAD] + 5.0])
+    assert posing._status.get_text() == ""
 
 
 def test_bones_are_dragged_by_their_ends(horse):
