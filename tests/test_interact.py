@@ -213,8 +213,12 @@ def test_bad_input_says_what_to_do(horse_rig, horse):
 def test_jupyter_widget_canvases_are_blitted(horse_rig):
     # ipympl's canvas (`%matplotlib widget`) reports supports_blit = False; it can blit,
     # and a blit there sends the changed pixels to the browser.
-    from ipympl.backend_nbagg import _Backend_ipympl
     from matplotlib.figure import Figure
+
+    try:
+        from ipympl.backend_nbagg import _Backend_ipympl
+    finally:
+        plt.switch_backend("Agg")  # importing ipympl makes it pyplot's backend
 
     figure = Figure()
     _Backend_ipympl.new_figure_manager_given_figure(1, figure)
