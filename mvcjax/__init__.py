@@ -66,6 +66,7 @@ from ._solvers import (
     LevenbergMarquardt as LevenbergMarquardt,
     SolveInfo as SolveInfo,
 )
+
 # isort: split
 # Fitting to a picture (issue 17), kept last so that it merges cleanly.
 from ._fit import (
