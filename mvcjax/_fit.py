@@ -6,10 +6,11 @@ triangle a pixel shows is decided without gradients (`_render.py`); the gradient
 from the shading: a textured interior moves its texture under the pixels, and the
 antialiased boundary edges cover a pixel by a linear ramp of its centre's distance to
 the edge, so that the silhouette moves the coverage of the pixels it crosses. That ramp
-is one pixel wide: a silhouette off by more than a pixel sees no gradient from where
-it should be. Blurring both pictures with a Gaussian of `blur` pixels spreads every
-edge over a few `blur`s, so the gradients reach that far; the fit runs from a wide blur
-down to none (coarse to fine).
+is one pixel wide: the sharp loss is kinked at every pixel, and flat where moving a
+part changes nothing it counts (a thin part that no longer overlaps its place in the
+target). Blurring both pictures with a Gaussian of `blur` pixels spreads every edge
+over a few `blur`s, so the slopes overlap and reach that far; the fit runs from a wide
+blur down to none (coarse to fine).
 """
 
 from __future__ import annotations
@@ -334,7 +335,8 @@ def _stage(rig, renderer, solver, weights, method, steps: int, start, target_pic
         step, y, dynamic, history = carry
         y, state, _ = method.step(fn, y, None, options, eqx.combine(dynamic, static), tags)
         # The loss at the accepted point, from the residuals a step evaluated there (the
-        # first step evaluates the start, and accepts it).
+        # first step evaluates the start, and accepts it): the Gauss-Newton family's
+        # state keeps them, so no render is spent on the history.
         loss = jnp.sum(state.f_info.residual**2) / count
         return step + 1, y, eqx.filter(state, eqx.is_array), history.at[step].set(loss)
 
@@ -367,8 +369,8 @@ def fit_targets(
 
     Each step builds the Jacobian of the pixel residuals with respect to the `2h` target
     coordinates by forward mode (`2h` tangents, one render), so a step costs a few
-    renders. Only `steps`, the sizes and the dtypes compile: every stage, picture,
-    start, tolerance and choice of `channels` of the same sizes runs the same program.
+    renders. Only `steps`, the sizes, the dtypes and the kinds of solver compile: every
+    stage, picture, start, tolerance and choice of `channels` runs the same program.
 
     Args:
         rig: the `Rig` to pose.
@@ -379,12 +381,15 @@ def fit_targets(
         init: `(h, 2)` the starting targets; default the rest pose,
             `rig.handle_positions`.
         channels: `"rgba"` (colour) or `"alpha"` (silhouette only), as in `image_loss`.
-        blurs: the blur of each stage, in pixels, e.g. `(4.0, 2.0, 1.0, 0.0)`. The first
-            should be about as large as the moves to recover (or the moves a few times
-            the blur), the last 0 for a sharp fit.
+        blurs: the standard deviation of each stage's Gaussian blur, in pixels, e.g.
+            `(4.0, 2.0, 1.0, 0.0)`: the first about as wide as the largest move to
+            recover (half of it worked on the horse), the last 0 for a sharp fit.
         steps: the most solver steps per stage (static: another value compiles anew).
-        rtol, atol: the solver's tolerances (optimistix's Cauchy criterion on the
-            targets, in pixels, and on the residuals).
+        rtol: the solver's relative tolerance (optimistix's Cauchy criterion: a stage
+            converged when successive targets, in pixels, and residuals agree to
+            `atol + rtol * size`). Numbers: other tolerances do not recompile.
+        atol: the solver's absolute tolerance, in pixels for the targets and in
+            picture values for the residuals.
         method: an optimistix Gauss-Newton-type least-squares solver
             (`optx.LevenbergMarquardt`, `optx.GaussNewton`, `optx.Dogleg`); it overrides
             `rtol` and `atol`. Default `optx.LevenbergMarquardt(rtol, atol)`.
@@ -403,7 +408,10 @@ def fit_targets(
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
         raise ValueError(f"steps must be a whole number >= 1 (the most solver steps per "
                          f"stage), got {steps!r}.")
-    blur_values = np.atleast_1d(np.asarray(blurs, np.float64))
+    try:
+        blur_values = np.atleast_1d(np.asarray(blurs, np.float64))
+    except (TypeError, ValueError):
+        blur_values = np.array([np.nan])
     if blur_values.ndim != 1 or not np.all(np.isfinite(blur_values)) or np.any(
             blur_values < 0):
         raise ValueError(f"blurs must be one or more numbers >= 0 (pixels, one per stage), "
