@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
-from jaxtyping import Array, ArrayLike, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from ._checks import kind_of
 from ._render import Renderer, _picture
@@ -221,11 +221,11 @@ def _residuals(rig, renderer, solver, weights, targets, target_picture, blur):
 def image_loss(
     rig: Rig,
     renderer: Renderer,
-    targets: Float[ArrayLike, "h 2"],
+    targets: Real[ArrayLike, "h 2"],
     picture: Any,
     *,
     channels: Any = "rgba",
-    blur: Float[ArrayLike, ""] = 0.0,
+    blur: Real[ArrayLike, ""] = 0.0,
     solver: Any = None,
 ) -> Float[Array, ""]:
     """How far the rig's pose at `targets`, drawn by `renderer`, is from `picture`: the
@@ -353,7 +353,7 @@ def fit_targets(
     renderer: Renderer,
     picture: Any,
     *,
-    init: Float[ArrayLike, "h 2"] | None = None,
+    init: Real[ArrayLike, "h 2"] | None = None,
     channels: Any = "rgba",
     blurs: Any = (4.0, 2.0, 1.0, 0.0),
     steps: Any = 30,
