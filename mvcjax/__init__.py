@@ -68,4 +68,12 @@ from ._solvers import (
     SolveInfo as SolveInfo,
 )
 
+# isort: split
+# Fitting to a picture (issue 17), kept last so that it merges cleanly.
+from ._fit import (
+    FitResult as FitResult,
+    fit_targets as fit_targets,
+    image_loss as image_loss,
+)
+
 __version__ = "0.1.0"
