@@ -26,7 +26,7 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from ._checks import kind_of
-from ._render import Renderer, _picture
+from ._render import Renderer, _picture, check_drawn_mesh, in_window
 from ._rig import Rig
 from ._solvers import AbstractSolver, FixedG
 
@@ -81,22 +81,7 @@ def _check_pair(rig, renderer) -> None:
     if not isinstance(renderer, Renderer):
         raise TypeError(f"renderer must be an mvcjax.Renderer (Renderer.build(rig, ...)), got "
                         f"{type(renderer).__name__}.")
-    n = rig.shape_mesh.vertices.shape[0]
-    drawn = renderer.texture_points.shape[0]
-    if drawn != n:
-        raise ValueError(f"renderer was built for a mesh of {drawn} vertices, but the rig's "
-                         f"shape mesh has {n}: build it for this rig, "
-                         "mvcjax.Renderer.build(rig, ...).")
-    rest, faces = renderer.rest, renderer.faces
-    if not any(isinstance(a, jax.core.Tracer) for a in (rest, faces, rig.shape_mesh.vertices)):
-        same = (np.array_equal(np.asarray(faces), np.asarray(rig.shape_mesh.faces))
-                and np.allclose(np.asarray(rest, np.float64),
-                                np.asarray(rig.shape_mesh.vertices, np.float64),
-                                rtol=1e-5, atol=1e-5 * float(np.ptp(np.asarray(rest)))))
-        if not same:
-            raise ValueError("renderer was built for another mesh of the same size as the "
-                             "rig's shape mesh (its rest vertices or triangles differ): build "
-                             "it for this rig, mvcjax.Renderer.build(rig, ...).")
+    check_drawn_mesh(renderer, rig.shape_mesh.vertices, rig.shape_mesh.faces)
 
 
 def _check_solver(solver) -> AbstractSolver:
@@ -112,7 +97,7 @@ def _check_in_view(rig, renderer, targets) -> None:
     """Raise if no handle lies in the renderer's window, warn about those outside."""
     window = np.asarray(renderer.window, np.float64)
     points = np.asarray(targets, np.float64)
-    inside = np.all((points >= window[:2]) & (points <= window[2:]), axis=1)
+    inside = in_window(points, window)
     hint = ("widen the window, e.g. mvcjax.Renderer.build(rig, ..., "
             "window=mvcjax.fit_window(rig.shape_mesh.vertices, size)), or start nearer")
     if not inside.any():

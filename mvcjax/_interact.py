@@ -25,10 +25,10 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._frames import deform_frames
-from ._render import Renderer, _window, fit_window
+from ._render import Renderer, _window, check_drawn_mesh, fit_window, in_window
 from ._rig import Rig
 from ._solvers import AbstractSolver, FixedG
-from ._topology import boundary_loops
+from ._topology import boundary_loops, edges
 
 _HANDLE_STYLE = {"marker": "o", "markersize": 9, "color": "tab:red", "markeredgecolor": "white",
                  "markeredgewidth": 1.2, "linestyle": "none"}
@@ -131,11 +131,8 @@ class Posing:
                                       **render_options)
         elif renderer is not None and (image is not None or render_options):
             raise ValueError("pass either renderer= or image= (and render options), not both.")
-        if renderer is not None and renderer.rest.shape != rig.shape_mesh.vertices.shape:
-            raise ValueError(f"renderer was built for a mesh of {renderer.rest.shape[0]} "
-                             f"vertices, the rig's shape mesh has "
-                             f"{rig.shape_mesh.vertices.shape[0]}; build it from this rig: "
-                             "mvcjax.Renderer.build(rig, image).")
+        if renderer is not None:
+            check_drawn_mesh(renderer, rig.shape_mesh.vertices, rig.shape_mesh.faces)
         self.renderer = renderer
         # The rig, renderer and solver are constants of the session's one program.
         self._pose = jax.jit(lambda t: _pose(rig, renderer, solver, t))
@@ -144,7 +141,7 @@ class Posing:
         self._bones = np.asarray(rig.handles.bones, np.int64).reshape(-1, 2)
         self._loops = boundary_loops(np.asarray(rig.shape_mesh.faces))
         self._outline_index = np.concatenate([np.append(loop, loop[0]) for loop in self._loops])
-        self._control_edges = _edges(np.asarray(rig.control_mesh.faces))
+        self._control_edges = edges(np.asarray(rig.control_mesh.faces))
 
         self.targets = self._rest_targets.copy()
         self.updates, self.update_seconds = 0, []
@@ -253,10 +250,7 @@ class Posing:
     # ---- drawing -------------------------------------------------------------------------
 
     def _check_in_view(self) -> None:
-        xmin, ymin, xmax, ymax = self.window
-        t = self._rest_targets
-        inside = (t[:, 0] >= xmin) & (t[:, 0] <= xmax) & (t[:, 1] >= ymin) & (t[:, 1] <= ymax)
-        if not inside.any():
+        if not in_window(self._rest_targets, self.window).any():
             raise ValueError(f"no handle of the rig lies in the window {self.window}, so none "
                              "can be dragged; leave window= out (it then holds the shape and "
                              "its handles) or pass one that holds them, e.g. "
@@ -302,13 +296,13 @@ class Posing:
         return jax.block_until_ready(self._pose(jnp.asarray(targets.astype(self._dtype))))
 
     def _draw_pose(self) -> None:
-        shape = np.asarray(self._shape)
         if self._image is not None:
             self._image.set_data(np.asarray(self._picture))
         else:
             from matplotlib.path import Path
 
-            self._patch.set_path(Path(shape[self._outline_index], self._codes))
+            outline = np.asarray(self._shape)[self._outline_index]
+            self._patch.set_path(Path(outline, self._codes))
         if self._control is not None:
             self._control.set_data(*_segments(np.asarray(self._control_vertices),
                                               self._control_edges))
@@ -445,12 +439,6 @@ def _can_blit(canvas) -> bool:
     return hasattr(canvas, "copy_from_bbox") and hasattr(canvas, "restore_region")
 
 
-def _edges(faces: np.ndarray) -> np.ndarray:
-    """The unique edges `(e, 2)` of a triangle mesh."""
-    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    return np.unique(edges, axis=0)
-
-
 def interact(rig: Any, image: Any = None, *, ax: Any = None, solver: Any = FixedG(),
              size: Any = None, window: Any = None, margin: Any = 0.3,
              control_mesh: Any = True, record: Any = False, pick_radius: Any = 12.0,
@@ -462,9 +450,9 @@ def interact(rig: Any, image: Any = None, *, ax: Any = None, solver: Any = Fixed
     a handle changes the control mesh, so it needs a new rig: `Rig.build(shape, handles)`,
     then `interact` again.
 
-    Needs an interactive matplotlib backend: in Jupyter, `pip install ipympl` and run
-    `%matplotlib widget` first; in a script, a desktop backend (the default one where a
-    display is available), then `plt.show()`.
+    Needs an interactive matplotlib backend: in Jupyter, `pip install 'mvcjax[widget]'`
+    (ipympl) and run `%matplotlib widget` first; in a script, a desktop backend (the
+    default one where a display is available), then `plt.show()`.
 
     Args:
         rig: the rig to pose.

@@ -157,6 +157,32 @@ def _edge_distances(tri):
     return normal, offset
 
 
+def check_drawn_mesh(renderer: Renderer, vertices, faces) -> None:
+    """Raise unless `renderer` draws the mesh of these rest `vertices` and `faces` (a
+    rig's shape mesh): another mesh, even of the same size, would draw a wrong picture."""
+    n, drawn = vertices.shape[0], renderer.rest.shape[0]
+    if drawn != n:
+        raise ValueError(f"renderer was built for a mesh of {drawn} vertices, but the rig's "
+                         f"shape mesh has {n}: build it for this rig, "
+                         "mvcjax.Renderer.build(rig, ...).")
+    if any(isinstance(a, jax.core.Tracer) for a in (renderer.rest, renderer.faces, vertices)):
+        return
+    rest = np.asarray(renderer.rest, np.float64)
+    same = (np.array_equal(np.asarray(renderer.faces), np.asarray(faces))
+            and np.allclose(rest, np.asarray(vertices, np.float64), rtol=1e-5,
+                            atol=1e-5 * float(np.ptp(rest))))
+    if not same:
+        raise ValueError("renderer was built for another mesh of the same size as the rig's "
+                         "shape mesh (its rest vertices or triangles differ): build it for "
+                         "this rig, mvcjax.Renderer.build(rig, ...).")
+
+
+def in_window(points, window) -> np.ndarray:
+    """`(k,)` whether each of the `(k, 2)` points lies in `window` (edges included)."""
+    points, window = np.asarray(points, np.float64), np.asarray(window, np.float64)
+    return np.all((points >= window[:2]) & (points <= window[2:]), axis=1)
+
+
 class Renderer(JittableModule):
     """Draws a triangle mesh at any vertex positions, textured by its rest positions.
 

@@ -197,6 +197,9 @@ def test_bad_input_says_what_to_do(horse_rig, horse):
                                                    shape_spacing=20.0), size=(16, 16))
     with pytest.raises(ValueError, match="renderer was built for a mesh of"):
         mvcjax.interact(horse_rig, renderer=other)
+    moved = (np.asarray(horse_rig.shape_mesh.vertices) + 50.0, horse_rig.shape_mesh.faces)
+    with pytest.raises(ValueError, match="another mesh of the same size"):
+        mvcjax.interact(horse_rig, renderer=mvcjax.Renderer.build(moved, size=(16, 16)))
     with pytest.raises(ValueError, match="pick_radius"):
         mvcjax.interact(horse_rig, pick_radius=0)
     with pytest.raises(ValueError, match="margin must be a number"):
