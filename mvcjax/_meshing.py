@@ -115,8 +115,36 @@ def triangulate_shape(
     area = np.format_float_positional(max_area, trim="-")
     out, _ = _triangulate(rings, handles[~on_boundary], f"pq28a{area}Q")
     verts, faces = np.asarray(out["vertices"], np.float64), np.asarray(out["triangles"], np.int64)
+    # Neighbours in the plane become neighbours in memory: a run of vertices then
+    # follows a few control vertices, which the skinning of many frames exploits.
+    order = hilbert_order(verts)
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    verts, faces = verts[order], rank[faces]
     handle_idx = cKDTree(verts).query(handles)[1]
     return verts, _counter_clockwise(verts, faces), handle_idx.astype(np.int64)
+
+
+def hilbert_order(points: Float[np.ndarray, "n 2"], bits: int = 16) -> Int[np.ndarray, " n"]:
+    """The order of `points` along a Hilbert curve over their bounding square (`bits`
+    levels): points close along it are close in the plane, and unlike a Morton order
+    the curve never jumps. Ties keep their input order."""
+    points = np.asarray(points, np.float64)
+    lo, size = points.min(axis=0), np.ptp(points, axis=0).max()
+    side = 1 << bits
+    cell = np.clip((points - lo) / max(size, np.finfo(float).tiny) * side, 0, side - 1)
+    x, y = cell[:, 0].astype(np.int64), cell[:, 1].astype(np.int64)
+    d = np.zeros(len(points), np.int64)
+    s = side >> 1
+    while s > 0:  # the classic xy -> d conversion, one level at a time
+        rx, ry = (x & s) > 0, (y & s) > 0
+        d += s * s * ((3 * rx) ^ ry)
+        flip = ~ry & rx
+        x = np.where(flip, s - 1 - x, x)
+        y = np.where(flip, s - 1 - y, y)
+        x, y = np.where(~ry, y, x), np.where(~ry, x, y)
+        s >>= 1
+    return np.argsort(d, kind="stable")
 
 
 def _counter_clockwise(verts, faces):

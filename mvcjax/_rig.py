@@ -494,7 +494,7 @@ class Rig(JittableModule):
 
     def skin(self, control_vertices: Float[ArrayLike, "c 2"]) -> Float[Array, "n 2"]:
         """Shape-mesh vertices `(n, 2)` carried by `(c, 2)` control vertices (`V_S = W V_C`)."""
-        return self.frame.to_world(self.skinning(self.frame.to_local(control_vertices)))
+        return self.skinning(self.frame.to_local(control_vertices), self.frame)
 
     def weights_at(self, points: Any) -> Skinning:
         """Skinning weights for any rest points the control mesh covers: pixels,
@@ -581,7 +581,7 @@ def _solve(rig: Rig, targets, solver: AbstractSolver, init):
 @_compiled_when_eager
 def _deform(rig: Rig, targets, solver: AbstractSolver, init):
     vertices, info = _solve_local(rig, targets, solver, init)
-    return rig.frame.to_world(rig.skinning(vertices)), info
+    return rig.skinning(vertices, rig.frame), info
 
 
 def _energy_data(vertices, faces, loops, inner, handles, weights, dtype) -> Energy:

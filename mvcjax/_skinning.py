@@ -17,6 +17,7 @@ from jaxtyping import Array, Float, Int
 
 from . import _coordinates as coords, _topology as topology
 from ._batching import only_batched, with_batching_rule
+from ._frame import Frame
 from ._module import JittableModule
 from ._xla import materialise
 
@@ -167,6 +168,42 @@ def pack_rows(index: np.ndarray, weight: np.ndarray, tile: int):
     return tile_index, tile_weight, slot
 
 
+def pack_blocks(index: np.ndarray, weight: np.ndarray, block: int):
+    """Rows of `(index, weight)` in blocks of `block` consecutive rows, each block a
+    dense matrix over the few control vertices its rows use.
+
+    The shape mesh is numbered along a Hilbert curve (`meshing.hilbert_order`), so a
+    block covers a compact patch and uses a few dozen of the control vertices: skinning
+    many frames is then one batched matrix product over the blocks.
+
+    Returns `(block_index (b, k), block_weight (b, k, block))`: row `block * i + r` is
+    `sum_j block_weight[i, j, r] V[block_index[i, j]]`, padded with zeros (the last
+    block's missing rows are zero).
+    """
+    n, width = index.shape
+    count = -(-n // block)
+    control = int(index.max(initial=0)) + 1
+    row_block = np.repeat(np.arange(n) // block, width)
+    keep = weight.reshape(-1) != 0
+    keys = row_block[keep] * control + index.reshape(-1)[keep]
+    used, slot_of = np.unique(keys, return_inverse=True)
+    owner = used // control
+    per_block = np.bincount(owner, minlength=count)
+    place = np.arange(len(used)) - (np.cumsum(per_block) - per_block)[owner]
+    block_index = np.zeros((count, max(int(per_block.max(initial=0)), 1)), np.int64)
+    block_index[owner, place] = used % control
+    block_weight = np.zeros((*block_index.shape, block), weight.dtype)
+    row = np.repeat(np.arange(n), width)[keep]
+    np.add.at(block_weight, (row // block, place[slot_of.reshape(-1)], row % block),
+              weight.reshape(-1)[keep])
+    return block_index, block_weight
+
+
+# Rows per block of the many-frames skinning: 128 to 512 measured alike at 6k shape
+# vertices (`benchmarks/frames.py`).
+BLOCK_ROWS = 256
+
+
 def tile_rows(index: np.ndarray) -> int:
     """Rows per tile for these rows, 8 to 64: the fewest weights streamed plus gathers
     made, a gather (one per tile and entry) counted as eight weights, as measured."""
@@ -185,12 +222,17 @@ class Skinning(JittableModule):
         tile_indices: `(k, t)` the control vertices of each tile's rows.
         tile_weights: `(k, t, s)` their weights, `s` rows per tile (0 on padding).
         slots: `(n,)` where each shape vertex's row sits among the `t * s` tile rows.
+        block_indices: `(b, j)` the control vertices of each block of consecutive rows,
+            and `block_weights`, `(b, j, r)` their weights (`pack_blocks`): the layout of
+            many frames at once, under `jax.vmap`.
         method: the skinning method the weights came from.
     """
 
     tile_indices: Int[Array, "k t"]
     tile_weights: Float[Array, "k t s"]
     slots: Int[Array, " n"]
+    block_indices: Int[Array, "b j"]
+    block_weights: Float[Array, "b j r"]
     method: AbstractSkinning = eqx.field(static=True, default=BlendedMVCSkinning())
 
     @classmethod
@@ -200,9 +242,12 @@ class Skinning(JittableModule):
         packed; weights stored as `dtype`."""
         indices, weights = np.asarray(indices, np.int64), np.asarray(weights, np.float64)
         tile_index, tile_weight, slot = pack_rows(indices, weights, tile_rows(indices))
+        block_index, block_weight = pack_blocks(indices, weights, BLOCK_ROWS)
         return cls(jnp.asarray(tile_index.astype(np.int32)),
                    jnp.asarray(tile_weight.astype(dtype)),
-                   jnp.asarray(slot.astype(np.int32)), method)
+                   jnp.asarray(slot.astype(np.int32)),
+                   jnp.asarray(block_index.astype(np.int32)),
+                   jnp.asarray(block_weight.astype(dtype)), method)
 
     @property
     def indices(self) -> Int[Array, "n k"]:
@@ -216,8 +261,15 @@ class Skinning(JittableModule):
         s = self.tile_weights.shape[2]
         return self.tile_weights[:, self.slots // s, self.slots % s].T
 
-    def __call__(self, control_vertices: Float[Array, "c 2"]) -> Float[Array, "n 2"]:
-        return with_batching_rule(_skin, _skin_frames)(self, control_vertices)
+    def __call__(self, control_vertices: Float[Array, "c 2"], frame: Frame | None = None
+                 ) -> Float[Array, "n 2"]:
+        """`W control_vertices`, the shape vertices `(n, 2)`; with a `frame`, mapped by
+        `frame.to_world` (the control vertices then in the frame's local coordinates).
+
+        Under `jax.vmap` the frame's map is applied as each block of frames is skinned:
+        a pass of its own over the result cost as much as the skinning at 20k shape
+        vertices."""
+        return with_batching_rule(_skin_in, _skin_frames)(self, control_vertices, frame)
 
     def matrix(self, control_count: int) -> Float[Array, "n c"]:
         """`W` as a dense `(n, control_count)` matrix (for analysis, and other tools:
@@ -244,13 +296,47 @@ def _skin(skinning: Skinning, control_vertices):
     return rows[skinning.slots]
 
 
-def _skin_frames(frames: int, in_batched, skinning: Skinning, control_vertices):
-    """`jax.vmap` of the skinning over control vertices: frame after frame (`lax.map`).
+def _skin_in(skinning: Skinning, control_vertices, frame):
+    out = _skin(skinning, control_vertices)
+    return out if frame is None else frame.to_world(out)
 
-    JAX's batching would turn `materialise`'s conditionals into selects, which XLA fuses
-    (2 to 3 times slower); one product with the dense `W` wastes nine products in ten on
-    its zeros, and measured slower than this loop from 6k shape vertices on (65 against
-    58 microseconds a frame at 6k, 1.05 against 0.54 ms at 100k)."""
+
+def _skin_blocks(skinning: Skinning, control_vertices: Float[Array, "f c 2"], frame):
+    """Many frames' skinning as one batched product over the blocks of consecutive rows
+    (`pack_blocks`), with frames and coordinates as the rows of its right-hand side."""
+    frames, n = control_vertices.shape[0], skinning.slots.shape[0]
+    columns = jnp.swapaxes(control_vertices, 1, 2).reshape(2 * frames, -1)  # (2f, c)
+    gathered = jnp.swapaxes(columns[:, skinning.block_indices], 0, 1)  # (b, 2f, k)
+    blocks = jnp.einsum("bxk,bkr->bxr", gathered, skinning.block_weights)  # (b, 2f, r)
+    rows = jnp.swapaxes(jnp.swapaxes(blocks, 0, 1).reshape(frames, 2, -1)[:, :, :n], 1, 2)
+    return rows if frame is None else frame.to_world(rows)
+
+
+def frames_per_product(shape_vertices: int) -> int:
+    """Frames skinned by one batched product: a power of two from 8 to 256, so that its
+    result (about `2**19` numbers) stays in the cache: at 20k shape vertices, 16 frames
+    at a time ran 1.5 times as fast as 256."""
+    return 1 << min(8, max(3, (2**19 // max(shape_vertices, 1)).bit_length() - 1))
+
+
+def _skin_frames(frames: int, in_batched, skinning: Skinning, control_vertices, frame):
+    """`jax.vmap` of the skinning over control vertices: `_skin_blocks`, a few frames at
+    a time (`frames_per_product`).
+
+    Each block's product is dense over its few dozen control vertices (at 6k shape
+    vertices, 19 nonzeros a row against 45 columns a block; a dense `W` over all 160
+    wastes nine products in ten) and runs at matrix-product speed, where mapping the
+    single frame's sparse skinning over frames gathers element by element: 15 to 23
+    against 37 to 62 microseconds a frame at 6k shape vertices, 46 to 110 against 180
+    at 20k (`benchmarks/frames.py` measures the whole frame)."""
     if not only_batched(in_batched, 1):
         return None
-    return jax.lax.map(lambda v: _skin(skinning, v), control_vertices), True
+    group = min(frames, frames_per_product(skinning.slots.shape[0]))
+    if group == frames:
+        return _skin_blocks(skinning, control_vertices, frame), True
+    padded = -(-frames // group) * group
+    extra = jnp.repeat(control_vertices[-1:], padded - frames, axis=0)
+    groups = jnp.concatenate([control_vertices, extra]).reshape(-1, group,
+                                                                *control_vertices.shape[1:])
+    out = jax.lax.map(lambda v: _skin_blocks(skinning, v, frame), groups)
+    return out.reshape(padded, *out.shape[2:])[:frames], True

@@ -61,19 +61,61 @@ def test_vmap_of_deform_solve_and_skin_match_single_frames(horse_rig):
 
 
 def test_vmap_takes_the_batching_rules(horse_rig, monkeypatch):
-    # The fixed-G rule steps the frames together; the skinning's maps over them, so that
-    # its conditionals stay conditionals (JAX's batching makes selects of them).
-    calls = []
-    rule = mvcjax.FixedG._iterate_frames
-    monkeypatch.setattr(mvcjax.FixedG, "_iterate_frames",
-                        lambda *a, **k: calls.append(1) or rule(*a, **k))
+    # The fixed-G rule steps the frames together; the skinning's is one batched product
+    # over blocks of rows, a few frames at a time.
+    calls = {"solve": 0, "skin": 0}
+    rule, blocks = mvcjax.FixedG._iterate_frames, _skinning._skin_blocks
+
+    def count(name, fn):
+        def counted(*a, **k):
+            calls[name] += 1
+            return fn(*a, **k)
+        return counted
+
+    monkeypatch.setattr(mvcjax.FixedG, "_iterate_frames", count("solve", rule))
+    monkeypatch.setattr(_skinning, "_skin_blocks", count("skin", blocks))
     frames = some_frames(horse_rig, 2)
-    jax.make_jaxpr(jax.vmap(horse_rig.solve))(frames)
-    assert calls
     control = jax.vmap(horse_rig.solve)(frames)
-    fast = jax.make_jaxpr(jax.vmap(horse_rig.skin))(control)
-    plain = jax.make_jaxpr(jax.vmap(lambda v: _skinning._skin(horse_rig.skinning, v)))(control)
-    assert "cond[" in str(fast) and "cond[" not in str(plain)
+    assert calls["solve"]
+    jax.make_jaxpr(jax.vmap(horse_rig.skin))(control)
+    assert calls["skin"]
+    # Batched over the rig, the rules decline: JAX's own batching.
+    calls.update(skin=0)
+    jax.make_jaxpr(jax.vmap(lambda s, v: s(v), in_axes=(None, 0)))(horse_rig.skinning, control)
+    assert calls["skin"]
+    calls.update(skin=0)
+    both = jax.tree.map(lambda *x: jnp.stack(x), horse_rig.skinning, horse_rig.skinning)
+    jax.make_jaxpr(jax.vmap(lambda s, v: s(v)))(both, control)
+    assert not calls["skin"]
+
+
+@pytest.mark.parametrize("frames, group", [(1, None), (5, None), (37, 8)])
+def test_the_blocked_skinning_of_many_frames_matches_single_frames(horse_rig, frames, group,
+                                                                   monkeypatch):
+    # One product for a few frames; groups of 8 frames for 37 (the last padded, then cut).
+    if group:
+        monkeypatch.setattr(_skinning, "frames_per_product", lambda n: group)
+    control = jax.vmap(horse_rig.solve)(some_frames(horse_rig, frames, seed=3))
+    many = jax.vmap(horse_rig.skin)(control)
+    assert many.shape == (frames, *horse_rig.shape_mesh.vertices.shape)
+    for k in range(frames):
+        np.testing.assert_allclose(many[k], horse_rig.skin(control[k]), atol=1e-9)
+
+
+def test_blocks_hold_the_rows_exactly(horse_rig):
+    # Each block's dense weights are the rows of W, in order: W from the blocks equals
+    # W from the packed tiles (both from the same rows).
+    s = horse_rig.skinning
+    c = horse_rig.control_mesh.vertices.shape[0]
+    n = s.slots.shape[0]
+    b, j, r = s.block_weights.shape
+    from_blocks = np.zeros((b * r, c))
+    for i in range(b):
+        np.add.at(from_blocks[i * r:(i + 1) * r].T, np.asarray(s.block_indices[i]),
+                  np.asarray(s.block_weights[i]))
+    np.testing.assert_allclose(from_blocks[:n], np.asarray(s.matrix(c)), atol=1e-15)
+    assert not from_blocks[n:].any()
+    assert b == -(-n // r) and j < c  # a block uses a few of the control vertices
 
 
 def test_a_batch_of_rigs_falls_back_to_jax_batching(horse_rig):

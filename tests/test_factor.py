@@ -153,3 +153,55 @@ def test_scaling_all_weights_under_jit_and_grad_changes_nothing(horse_rig):
     value, grad = jax.jit(jax.value_and_grad(loss))(jnp.asarray(3.0))
     assert float(value) == pytest.approx(float(loss(1.0)), rel=1e-12)
     assert abs(float(grad)) < 1e-9 * float(value)
+
+
+@pytest.mark.parametrize("weights", [mvcjax.Weights(), mvcjax.Weights(laplacian=3.0, length=0.5)])
+def test_steps_of_many_frames_match_single_steps(ring_shape, weights):
+    # step_frames applies N^{-1} to A^T W b gathered through the spread table, where step
+    # applies G: the same map. On a control mesh with a hole, inner and polygon vertices.
+    rig = mvcjax.Rig.build(ring_shape, [[35.0, 0.0], [-35.0, 0.0]], weights=weights,
+                           dtype=jnp.float64)
+    factor = rig.factor
+    assert isinstance(factor, DenseFactor)
+    rng = np.random.default_rng(0)
+    rest = factor.rest.T
+    frames = rest[None] + jnp.asarray(rng.normal(scale=0.02, size=(3, *rest.shape)))
+    targets = rest[factor.handles][None] + jnp.asarray(
+        rng.normal(scale=0.05, size=(3, factor.handles.shape[0], 2)))
+    data = factor.handle_part_frames(targets)
+    many = factor.step_frames(jnp.moveaxis(frames, 0, -1), data)
+    for k in range(3):
+        one = factor.step(frames[k].T, factor.handle_part(targets[k]))
+        np.testing.assert_allclose(many[..., k], one.T, atol=1e-12)
+
+
+def test_spread_table_is_the_transpose_of_the_local_rows(horse_rig):
+    # A^T W b by the table's gather equals the dense transpose product.
+    from mvcjax._factor import _local_row_weights, _local_rows
+    from mvcjax._stencils import transpose_table
+
+    factor = horse_rig.factor
+    rows, coef, _ = _local_rows(horse_rig.energy)
+    m, n = rows.shape[0], factor.rest.shape[1]
+    dense = np.zeros((m, n))
+    np.add.at(dense, (np.repeat(np.arange(m), rows.shape[1]), np.asarray(rows).reshape(-1)),
+              np.asarray(coef).reshape(-1))
+    b = np.random.default_rng(1).normal(size=m)
+    expected = dense.T @ (np.asarray(_local_row_weights(horse_rig.energy)) * b)
+    gathered = np.asarray(factor.spread_coef) * np.append(b, 0.0)[
+        np.minimum(np.asarray(factor.spread) // rows.shape[1], m)]
+    np.testing.assert_allclose(gathered.sum(axis=1), expected, rtol=1e-12, atol=1e-12)
+    # Zero coefficients (the edge rows' padding) are left out of the table.
+    table = transpose_table(rows, coef, n)
+    touching = np.bincount(np.asarray(rows)[np.asarray(coef) != 0], minlength=n)
+    assert table.shape == (n, touching.max())
+    np.testing.assert_array_equal((table < rows.size).sum(axis=1), touching)
+
+
+def test_dense_factor_of_a_traced_energy_asks_for_the_table(horse_rig):
+    from mvcjax._factor import dense_factor
+
+    with pytest.raises(ValueError, match="rebuild"):
+        jax.jit(lambda e: dense_factor(e).normal)(horse_rig.energy)
+    rebuilt = jax.jit(lambda e: horse_rig.factor.rebuild(e).normal_inverse)(horse_rig.energy)
+    np.testing.assert_allclose(rebuilt, horse_rig.factor.normal_inverse, rtol=1e-9, atol=1e-9)

@@ -4,7 +4,12 @@ import pytest
 import shapely
 
 import mvcjax
-from mvcjax._meshing import control_polygon, triangulate_control, triangulate_shape
+from mvcjax._meshing import (
+    control_polygon,
+    hilbert_order,
+    triangulate_control,
+    triangulate_shape,
+)
 
 
 def u_shape(gap):
@@ -95,3 +100,28 @@ def test_close_parts_move_independently(horse):
         ours_error = np.linalg.norm(other_hoof(ours, offset) - reference)
         bridged_error = np.linalg.norm(other_hoof(bridged, offset) - reference)
         assert ours_error < 0.25 * bridged_error, (offset, ours_error, bridged_error)
+
+
+@pytest.mark.parametrize("bits", [1, 3, 5])
+def test_hilbert_order_walks_a_grid_in_unit_steps(bits):
+    side = 1 << bits
+    grid = np.stack(np.meshgrid(np.arange(side), np.arange(side)), -1).reshape(-1, 2)
+    shuffled = np.random.default_rng(bits).permutation(grid) * 0.37 + [1e4, -5.0]
+    order = hilbert_order(shuffled, bits=bits)
+    assert sorted(order) == list(range(len(grid)))
+    steps = np.abs(np.diff(shuffled[order], axis=0)).sum(axis=1)
+    np.testing.assert_allclose(steps, 0.37)
+
+
+def test_shape_mesh_vertices_follow_the_hilbert_curve(ring_shape):
+    # Consecutive vertices are neighbours in the plane (what the skinning of many frames
+    # relies on), and the faces and pinned handles follow the renumbering.
+    handles = np.array([[35.0, 0.0], [-50.0, 0.0]])
+    verts, faces, pinned = triangulate_shape(ring_shape, 3.0, handles)
+    np.testing.assert_array_equal(hilbert_order(verts), np.arange(len(verts)))
+    np.testing.assert_allclose(verts[pinned], handles, atol=1e-9)
+    edge = np.linalg.norm(verts[faces[:, 0]] - verts[faces[:, 1]], axis=1)
+    step = np.linalg.norm(np.diff(verts, axis=0), axis=1)
+    assert np.median(step) < 2 * np.median(edge)
+    assert (np.cross(verts[faces[:, 1]] - verts[faces[:, 0]],
+                     verts[faces[:, 2]] - verts[faces[:, 0]]) > 0).all()

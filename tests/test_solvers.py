@@ -173,7 +173,10 @@ def test_gradient_through_gauss_newton(horse_rig):
     # Implicit differentiation (optimistix); FixedG's unrolled gradient is in test_rig.
     solver = mvcjax.GaussNewton()
     targets = targets_for(horse_rig, 0, [30.0, 0.0])
-    landmark = 50
+    # A landmark found by place, not by number (the mesh's numbering is its own): the
+    # vertex nearest the middle of the body.
+    vertices = np.asarray(horse_rig.shape_mesh.vertices)
+    landmark = int(np.argmin(np.linalg.norm(vertices - vertices.mean(axis=0), axis=1)))
 
     def loss(t):
         return jnp.sum(horse_rig.deform(t, solver)[landmark] ** 2)
