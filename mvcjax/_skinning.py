@@ -168,7 +168,7 @@ def pack_rows(index: np.ndarray, weight: np.ndarray, tile: int):
     return tile_index, tile_weight, slot
 
 
-def pack_blocks(index: np.ndarray, weight: np.ndarray, block: int):
+def pack_blocks(index: np.ndarray, weight: np.ndarray, block: int, max_width: int | None = None):
     """Rows of `(index, weight)` in blocks of `block` consecutive rows, each block a
     dense matrix over the few control vertices its rows use.
 
@@ -178,7 +178,9 @@ def pack_blocks(index: np.ndarray, weight: np.ndarray, block: int):
 
     Returns `(block_index (b, k), block_weight (b, k, block))`: row `block * i + r` is
     `sum_j block_weight[i, j, r] V[block_index[i, j]]`, padded with zeros (the last
-    block's missing rows are zero).
+    block's missing rows are zero). Rows in no such order (points given in any order,
+    or one control vertex a row) make blocks as wide as a dense `W`: past `max_width`
+    control vertices in a block, returns `None` before allocating them.
     """
     n, width = index.shape
     count = -(-n // block)
@@ -190,7 +192,10 @@ def pack_blocks(index: np.ndarray, weight: np.ndarray, block: int):
     owner = used // control
     per_block = np.bincount(owner, minlength=count)
     place = np.arange(len(used)) - (np.cumsum(per_block) - per_block)[owner]
-    block_index = np.zeros((count, max(int(per_block.max(initial=0)), 1)), np.int64)
+    width_used = max(int(per_block.max(initial=0)), 1)
+    if max_width is not None and width_used > max_width:
+        return None
+    block_index = np.zeros((count, width_used), np.int64)
     block_index[owner, place] = used % control
     block_weight = np.zeros((*block_index.shape, block), weight.dtype)
     row = np.repeat(np.arange(n), width)[keep]
@@ -202,6 +207,13 @@ def pack_blocks(index: np.ndarray, weight: np.ndarray, block: int):
 # Rows per block of the many-frames skinning: 128 to 512 measured alike at 6k shape
 # vertices (`benchmarks/frames.py`).
 BLOCK_ROWS = 256
+
+
+def block_width_limit(row_width: int) -> int:
+    """The most control vertices a block may use before the blocked product stops paying:
+    four times a row's entries, or 64 (a Hilbert-ordered horse used 34 to 45 with rows of
+    18 to 19)."""
+    return max(4 * row_width, 64)
 
 
 def tile_rows(index: np.ndarray) -> int:
@@ -224,7 +236,9 @@ class Skinning(JittableModule):
         slots: `(n,)` where each shape vertex's row sits among the `t * s` tile rows.
         block_indices: `(b, j)` the control vertices of each block of consecutive rows,
             and `block_weights`, `(b, j, r)` their weights (`pack_blocks`): the layout of
-            many frames at once, under `jax.vmap`.
+            many frames at once, under `jax.vmap`. Empty (`b = 0`) where the rows are
+            too scattered for blocks (`block_width_limit`): `jax.vmap` then maps the
+            single frame's skinning over the frames.
         method: the skinning method the weights came from.
     """
 
@@ -242,7 +256,10 @@ class Skinning(JittableModule):
         packed; weights stored as `dtype`."""
         indices, weights = np.asarray(indices, np.int64), np.asarray(weights, np.float64)
         tile_index, tile_weight, slot = pack_rows(indices, weights, tile_rows(indices))
-        block_index, block_weight = pack_blocks(indices, weights, BLOCK_ROWS)
+        blocks = pack_blocks(indices, weights, BLOCK_ROWS, block_width_limit(indices.shape[1]))
+        if blocks is None:  # no blocked product (`_skin_frames` maps over the frames)
+            blocks = np.zeros((0, 1), np.int64), np.zeros((0, 1, BLOCK_ROWS))
+        block_index, block_weight = blocks
         return cls(jnp.asarray(tile_index.astype(np.int32)),
                    jnp.asarray(tile_weight.astype(dtype)),
                    jnp.asarray(slot.astype(np.int32)),
@@ -331,6 +348,9 @@ def _skin_frames(frames: int, in_batched, skinning: Skinning, control_vertices, 
     at 20k (`benchmarks/frames.py` measures the whole frame)."""
     if not only_batched(in_batched, 1):
         return None
+    if skinning.block_weights.shape[0] == 0:  # rows too scattered for blocks
+        out = jax.lax.map(lambda v: _skin_in(skinning, v, frame), control_vertices)
+        return out, True
     group = min(frames, frames_per_product(skinning.slots.shape[0]))
     if group == frames:
         return _skin_blocks(skinning, control_vertices, frame), True

@@ -102,6 +102,20 @@ def test_the_blocked_skinning_of_many_frames_matches_single_frames(horse_rig, fr
         np.testing.assert_allclose(many[k], horse_rig.skin(control[k]), atol=1e-9)
 
 
+def test_points_in_no_order_skip_the_blocks(horse_rig):
+    # Blocks of scattered points would be as wide as a dense W: none are built, and vmap
+    # maps the single frame's skinning instead, with the same result.
+    vertices = np.asarray(horse_rig.shape_mesh.vertices)
+    points = vertices[np.random.default_rng(0).permutation(len(vertices))]
+    scattered = horse_rig.weights_at(points)
+    assert scattered.block_weights.shape[0] == 0
+    assert horse_rig.weights_at(vertices).block_weights.shape[0] > 0
+    control = jax.vmap(horse_rig.solve)(some_frames(horse_rig, 3, seed=4))
+    many = jax.vmap(scattered)(control)
+    for k in range(3):
+        np.testing.assert_allclose(many[k], scattered(control[k]), atol=1e-9)
+
+
 def test_blocks_hold_the_rows_exactly(horse_rig):
     # Each block's dense weights are the rows of W, in order: W from the blocks equals
     # W from the packed tiles (both from the same rows).

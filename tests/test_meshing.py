@@ -123,5 +123,5 @@ def test_shape_mesh_vertices_follow_the_hilbert_curve(ring_shape):
     edge = np.linalg.norm(verts[faces[:, 0]] - verts[faces[:, 1]], axis=1)
     step = np.linalg.norm(np.diff(verts, axis=0), axis=1)
     assert np.median(step) < 2 * np.median(edge)
-    assert (np.cross(verts[faces[:, 1]] - verts[faces[:, 0]],
-                     verts[faces[:, 2]] - verts[faces[:, 0]]) > 0).all()
+    a, b = verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]]
+    assert (a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0] > 0).all()  # still counter-clockwise
