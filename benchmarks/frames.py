@@ -83,7 +83,7 @@ def main(argv=None) -> int:
     parser.add_argument("--json", help="write the rows to this JSON file")
     parser.add_argument("--counts", type=int, nargs="*", help="batch sizes (frames)")
     parser.add_argument("--repeats", type=int, help="timed calls per measurement")
-    parser.add_argument("--chunk", type=int, default=256, help="frames solved together")
+    parser.add_argument("--chunk", type=int, default=1024, help="frames solved together")
     parser.add_argument("--devices", choices=["one", "all"], default="one")
     args = parser.parse_args(argv)
     counts = args.counts or (QUICK_COUNTS if args.quick else COUNTS)

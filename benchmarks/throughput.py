@@ -91,11 +91,11 @@ def _targets(rig, count: int, seed: int = 0):
 
 
 def _stream_bytes(rig) -> int:
-    """Bytes a frame must move at least: the skinning's arrays and `G` read once (the
-    iterations find `G` in cache), the shape vertices written."""
-    import jax
-
-    skin = sum(leaf.nbytes for leaf in jax.tree.leaves(rig.skinning))
+    """Bytes a frame must move at least: the skinning's packed rows and `G` read once
+    (the iterations find `G` in cache), the shape vertices written. (The skinning's
+    blocks serve batches of frames only.)"""
+    s = rig.skinning
+    skin = s.tile_indices.nbytes + s.tile_weights.nbytes + s.slots.nbytes
     written = rig.shape_mesh.vertices.nbytes
     g = getattr(rig.factor, "shape", None)  # a dense factor's G (its shape part)
     return int(skin + written + (g.nbytes if g is not None else 0))

@@ -63,7 +63,7 @@ def deform_frames(
     targets: Any,
     solver: AbstractSolver = FixedG(),
     *,
-    chunk: Any = 256,
+    chunk: Any = 1024,
     devices: Any = None,
 ) -> Float[Array, "frames n 2"]:
     """Deformed shape-mesh vertices for every frame of `targets`.
@@ -79,7 +79,11 @@ def deform_frames(
         rig: the rig.
         targets: `(frames, h, 2)` handle targets, one row of targets per frame.
         solver: the solver of every frame (default: the paper's `FixedG()`).
-        chunk: frames solved together on a device (memory grows with it).
+        chunk: frames solved together on a device. Working memory grows little with
+            it: the solve's is a few numbers per control vertex and frame, and the
+            skinning takes a few frames at a time. More chunks cost a copy of each
+            chunk's result: at 20k shape vertices, 1024 frames ran 1.6 times as fast
+            in one chunk as in four of 256.
         devices: the devices to shard the frames over (default: one, the default device;
             `jax.devices()` for all). Frames are padded to a multiple of their count.
 
