@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import sys
 import time
 
 
@@ -15,6 +16,56 @@ def spacing_for(shape, vertices: int) -> float:
     Calibrated on Triangle's q28 meshes of the horse: about `area / (0.513 s^2)` vertices.
     """
     return (shape.area / (0.513 * vertices)) ** 0.5
+
+
+# glibc's malloc keeping freed blocks of up to 1 GiB for reuse, in one arena.
+KEEP_FREED_TUNABLES = ("glibc.malloc.mmap_threshold=1073741824:"
+                       "glibc.malloc.trim_threshold=1073741824:glibc.malloc.arena_max=1")
+
+
+def allocator_rows(choice: str, measure, script: str, argv: list[str],
+                   child_args: tuple[str, ...] = ()) -> list[dict]:
+    """The rows of `measure(allocator)` for glibc's default malloc and for one that keeps
+    freed memory (`choice`: "default", "keep_freed" or "both").
+
+    By default glibc maps every block over 32 MiB afresh (and, from threads other than
+    the main one, every block over 64 MiB) and unmaps it when freed, so each call of a
+    batched program pays the kernel's page faults for its whole result again: about 17
+    ms for the 48 MB of 1024 frames at 6k shape vertices. A loop of single frames reuses
+    its small blocks. `GLIBC_TUNABLES` is read when a process starts, so the
+    "keep_freed" rows come from this script run again with it set (`child_args` added
+    to its arguments `argv`, less `--json` and `--allocator`), unless this process
+    already runs with it.
+    """
+    rows = []
+    if choice in ("default", "both"):
+        if os.environ.get("GLIBC_TUNABLES"):
+            print(f"note: GLIBC_TUNABLES={os.environ['GLIBC_TUNABLES']} is set: the "
+                  "'default' rows are not glibc's defaults")
+        rows += measure("default")
+    if choice not in ("keep_freed", "both"):
+        return rows
+    if platform.libc_ver()[0] != "glibc":
+        print("keep_freed: not measured, the C library is not glibc")
+        return rows
+    if os.environ.get("GLIBC_TUNABLES") == KEEP_FREED_TUNABLES:
+        return rows + measure("keep_freed")
+    import subprocess
+    import tempfile
+
+    kept, skip = [], False
+    for arg in argv:
+        if skip or arg.split("=")[0] in ("--json", "--allocator"):
+            skip = not skip and "=" not in arg
+            continue
+        kept.append(arg)
+    with tempfile.TemporaryDirectory() as tmp:
+        out = os.path.join(tmp, "rows.json")
+        subprocess.run([sys.executable, script, *kept, *child_args, "--allocator",
+                        "keep_freed", "--json", out], check=True,
+                       env={**os.environ, "GLIBC_TUNABLES": KEEP_FREED_TUNABLES})
+        with open(out) as f:
+            return rows + [r for r in json.load(f)["rows"] if r.get("allocator")]
 
 
 def median_ms(fn, args_list, repeats: int, budget_s: float = 3.0) -> float:
@@ -50,6 +101,8 @@ def write_results(path: str, rows: list[dict], **meta) -> None:
 
     meta = {
         "jax": jax.__version__,
+        "glibc_tunables": os.environ.get("GLIBC_TUNABLES"),
+        "keep_freed_tunables": KEEP_FREED_TUNABLES,
         "device": jax.devices()[0].device_kind,
         "platform": platform.platform(),
         "cpu_count": os.cpu_count(),

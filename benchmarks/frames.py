@@ -5,7 +5,9 @@ For each batch size: compile time of the batch (its first call), the median time
 batch over several calls (every call blocked until ready), frames per second, and the
 same frames through a Python loop of a jitted single-frame `rig.deform` (dispatched
 asynchronously, blocked once at the end), and the throughput ratio. With `--devices all`
-the batch is sharded over every JAX device.
+the batch is sharded over every JAX device. Measured with glibc's default malloc, and
+keeping freed memory for reuse (`GLIBC_TUNABLES=<_timing.KEEP_FREED_TUNABLES>`, in a
+second process; `--allocator`).
 
     python benchmarks/frames.py                       # 1, 64, 1024, 16384 frames
     python benchmarks/frames.py --quick --json FILE   # 1, 64, 256 frames
@@ -17,14 +19,14 @@ import argparse
 import sys
 import time
 
-from _timing import compile_ms, median_ms, spacing_for, write_results
+from _timing import allocator_rows, compile_ms, median_ms, spacing_for, write_results
 
 COUNTS = [1, 64, 1024, 16384]
 QUICK_COUNTS = [1, 64, 256]
 LOOP_LIMIT = 4096  # frames: longer Python loops take too long to repeat
 
 
-def run(counts, repeats: int, devices: str, chunk: int) -> list[dict]:
+def run(counts, repeats: int, devices: str, chunk: int, allocator: str) -> list[dict]:
     import jax
     import numpy as np
 
@@ -59,6 +61,7 @@ def run(counts, repeats: int, devices: str, chunk: int) -> list[dict]:
             "control_vertices": int(rig.control_mesh.vertices.shape[0]),
             "devices": len(device_list or [0]),
             "chunk": chunk,
+            "allocator": allocator,
             "batch_compile_ms": compile_ms(batched, batches[0]),
         }
         row["batch_ms"] = median_ms(batched, [(b,) for b in batches], repeats)
@@ -71,7 +74,7 @@ def run(counts, repeats: int, devices: str, chunk: int) -> list[dict]:
         rows.append(row)
         loop_part = (f"loop {row['loop_frames_per_s']:9.0f} frames/s, batch/loop "
                      f"{row['speedup']:5.1f}x" if "loop_ms" in row else "loop not timed")
-        print(f"{count:6d} frames: batch {row['batch_ms']:9.2f} ms = "
+        print(f"{count:6d} frames ({allocator}): batch {row['batch_ms']:9.2f} ms = "
               f"{row['batch_frames_per_s']:9.0f} frames/s (compile {row['batch_compile_ms']:.0f} "
               f"ms) | {loop_part}", flush=True)
     return rows
@@ -85,11 +88,16 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, help="timed calls per measurement")
     parser.add_argument("--chunk", type=int, default=1024, help="frames solved together")
     parser.add_argument("--devices", choices=["one", "all"], default="one")
+    parser.add_argument("--allocator", choices=["default", "keep_freed", "both"], default="both",
+                        help="glibc's default malloc, one keeping freed memory "
+                             "(_timing.KEEP_FREED_TUNABLES), or both")
     args = parser.parse_args(argv)
     counts = args.counts or (QUICK_COUNTS if args.quick else COUNTS)
     repeats = args.repeats or (5 if args.quick else 20)
     t0 = time.perf_counter()
-    rows = run(counts, repeats, args.devices, args.chunk)
+    rows = allocator_rows(
+        args.allocator, lambda allocator: run(counts, repeats, args.devices, args.chunk, allocator),
+        __file__, sys.argv[1:] if argv is None else argv)
     print(f"total {time.perf_counter() - t0:.0f} s")
     if args.json:
         write_results(args.json, rows, benchmark="frames", repeats=repeats)

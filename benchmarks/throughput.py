@@ -18,7 +18,9 @@ Three parts, float32, FixedG (15 iterations, the paper's), in one run:
   `jax.jit(jax.vmap(rig.skin))` and `mvcjax.deform_frames`, each against a Python loop
   of the jitted single frame (`jax.jit(rig.deform)` and so on) over the same B frames
   (dispatched asynchronously, blocked once at the end): the loop's time over the
-  batch's.
+  batch's. Measured twice: with glibc's default malloc, which maps a batch's large
+  result afresh on every call and pays the page faults again, and keeping freed memory
+  for reuse (`GLIBC_TUNABLES=<_timing.KEEP_FREED_TUNABLES>`, in a second process).
 
 Compilation happens once, outside the timed region (reported apart); every timed call
 blocks until ready; times are medians of several calls. The issue's targets are printed
@@ -34,7 +36,7 @@ import argparse
 import sys
 import time
 
-from _timing import compile_ms, median_ms, spacing_for, write_results
+from _timing import allocator_rows, compile_ms, median_ms, spacing_for, write_results
 
 SIZES = [6000, 20000, 64000, 100000]
 QUICK_SIZES = [1500, 6000]
@@ -166,12 +168,12 @@ def _batch_paths(rig, batches):
     }
 
 
-def run_batches(shape, handles, sizes, count: int, repeats: int) -> list[dict]:
+def run_batches(shape, handles, sizes, count: int, repeats: int, allocator: str) -> list[dict]:
     rows = []
     for target in sizes:
         rig = _rig(shape, handles, target, "blended")
         batches = [_targets(rig, count, seed) for seed in range(2)]
-        row = {"target_shape_vertices": target, "frames": count,
+        row = {"target_shape_vertices": target, "frames": count, "allocator": allocator,
                "shape_vertices": int(rig.shape_mesh.vertices.shape[0])}
         for name, (batched, single, inputs) in _batch_paths(rig, batches).items():
 
@@ -182,7 +184,7 @@ def run_batches(shape, handles, sizes, count: int, repeats: int) -> list[dict]:
             row[f"{name}_ms"] = median_ms(batched, [(b,) for b in inputs], repeats)
             row[f"{name}_loop_ms"] = median_ms(loop, [(b,) for b in inputs], max(3, repeats // 2))
             row[f"{name}_speedup"] = row[f"{name}_loop_ms"] / row[f"{name}_ms"]
-            print(f"V_S={row['shape_vertices']:>6} {count} frames {name:>13}: batch "
+            print(f"V_S={row['shape_vertices']:>6} {count} frames {name:>13} ({allocator}): batch "
                   f"{row[f'{name}_ms']:8.1f} ms ({count / row[f'{name}_ms'] * 1e3:8.0f} "
                   f"frames/s), loop {row[f'{name}_loop_ms']:8.1f} ms, batch/loop "
                   f"{row[f'{name}_speedup']:5.1f}x", flush=True)
@@ -204,6 +206,9 @@ def main(argv=None) -> int:
                         help="shape-mesh sizes of the batch part")
     parser.add_argument("--frames", type=int, help="frames in a batch")
     parser.add_argument("--repeats", type=int, help="timed calls per measurement")
+    parser.add_argument("--allocator", choices=["default", "keep_freed", "both"], default="both",
+                        help="batches with glibc's default malloc, with one keeping freed "
+                             "memory (_timing.KEEP_FREED_TUNABLES), or both")
     args = parser.parse_args(argv)
     from mvcjax import datasets
 
@@ -221,8 +226,11 @@ def main(argv=None) -> int:
     rows = [{"part": "bandwidth", **bandwidth}]
     rows += [{"part": "frame", **r}
              for r in run_frames(shape, handles, sizes, repeats, best * 1e9)]
-    rows += [{"part": "batch", **r}
-             for r in run_batches(shape, handles, batch_sizes, count, max(3, repeats // 20))]
+    rows += allocator_rows(
+        args.allocator,
+        lambda allocator: [{"part": "batch", **r} for r in run_batches(
+            shape, handles, batch_sizes, count, max(3, repeats // 20), allocator)],
+        __file__, sys.argv[1:] if argv is None else argv, child_args=("--sizes",))
     print(f"total {time.perf_counter() - t0:.0f} s")
     if args.json:
         write_results(args.json, rows, benchmark="throughput", repeats=repeats)

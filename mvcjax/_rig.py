@@ -541,7 +541,7 @@ class Rig(JittableModule):
         )
 
 
-def _solve_local(rig: Rig, targets, solver: AbstractSolver, init):
+def solve_in_frame(rig: Rig, targets, solver: AbstractSolver, init):
     """The solve in the rig's frame: local control vertices, and the info with the energy
     in the user's units."""
     local_targets = rig._pinned(targets)
@@ -574,13 +574,13 @@ def _compiled_when_eager(fn):
 
 @_compiled_when_eager
 def _solve(rig: Rig, targets, solver: AbstractSolver, init):
-    vertices, info = _solve_local(rig, targets, solver, init)
+    vertices, info = solve_in_frame(rig, targets, solver, init)
     return rig.frame.to_world(vertices), info
 
 
 @_compiled_when_eager
 def _deform(rig: Rig, targets, solver: AbstractSolver, init):
-    vertices, info = _solve_local(rig, targets, solver, init)
+    vertices, info = solve_in_frame(rig, targets, solver, init)
     return rig.skinning(vertices, rig.frame), info
 
 

@@ -330,10 +330,11 @@ def _skin_blocks(skinning: Skinning, control_vertices: Float[Array, "f c 2"], fr
 
 
 def frames_per_product(shape_vertices: int) -> int:
-    """Frames skinned by one batched product: a power of two from 8 to 256, so that its
-    result (about `2**19` numbers) stays in the cache: at 20k shape vertices, 16 frames
-    at a time ran 1.5 times as fast as 256."""
-    return 1 << min(8, max(3, (2**19 // max(shape_vertices, 1)).bit_length() - 1))
+    """Frames skinned by one batched product: 128, or fewer (a power of two, at least 8)
+    where 128 frames would pass `2**24` shape vertices in all (over 131k a frame). At
+    6k, 20k and 60k shape vertices, 128 frames at a time ran 1.1 to 1.3 times as fast as
+    16 (with freed memory reused; see the guide's "Memory for large batches")."""
+    return 1 << min(7, max(3, (2**24 // max(shape_vertices, 1)).bit_length() - 1))
 
 
 def _skin_frames(frames: int, in_batched, skinning: Skinning, control_vertices, frame):
