@@ -4,7 +4,8 @@ of jitted single frames, on the horse (about 6k shape vertices, 160 control vert
 For each batch size: compile time of the batch (its first call), the median time of a
 batch over several calls (every call blocked until ready), frames per second, and the
 same frames through a Python loop of a jitted single-frame `rig.deform` (dispatched
-asynchronously, blocked once at the end), and the throughput ratio. With `--devices all`
+asynchronously, blocked once at the end), and the throughput ratio; and the batch with
+`out=` (each call reusing the previous result's memory). With `--devices all`
 the batch is sharded over every JAX device. Measured with glibc's default malloc, and
 keeping freed memory for reuse (`GLIBC_TUNABLES=<_timing.KEEP_FREED_TUNABLES>`, in a
 second process; `--allocator`).
@@ -66,17 +67,31 @@ def run(counts, repeats: int, devices: str, chunk: int, allocator: str) -> list[
         }
         row["batch_ms"] = median_ms(batched, [(b,) for b in batches], repeats)
         row["batch_frames_per_s"] = count / row["batch_ms"] * 1e3
+        if device_list is None:  # `out=`: the previous result's memory reused
+            held = [batched(batches[0])]
+
+            def into(b, held=held):
+                held[0] = mvcjax.deform_frames(rig, b, chunk=chunk, out=held[0])
+                return held[0]
+
+            row["batch_out_ms"] = median_ms(into, [(b,) for b in batches], repeats)
+            row["batch_out_frames_per_s"] = count / row["batch_out_ms"] * 1e3
         if count <= LOOP_LIMIT:
             single(batches[0][0]).block_until_ready()
             row["loop_ms"] = median_ms(loop, [(b,) for b in batches], max(3, repeats // 4))
             row["loop_frames_per_s"] = count / row["loop_ms"] * 1e3
             row["speedup"] = row["loop_ms"] / row["batch_ms"]
+            if "batch_out_ms" in row:
+                row["out_speedup"] = row["loop_ms"] / row["batch_out_ms"]
         rows.append(row)
         loop_part = (f"loop {row['loop_frames_per_s']:9.0f} frames/s, batch/loop "
                      f"{row['speedup']:5.1f}x" if "loop_ms" in row else "loop not timed")
+        out_part = (f" | out= {row['batch_out_frames_per_s']:9.0f} frames/s"
+                    + (f" ({row['out_speedup']:4.1f}x)" if "out_speedup" in row else "")
+                    if "batch_out_ms" in row else "")
         print(f"{count:6d} frames ({allocator}): batch {row['batch_ms']:9.2f} ms = "
               f"{row['batch_frames_per_s']:9.0f} frames/s (compile {row['batch_compile_ms']:.0f} "
-              f"ms) | {loop_part}", flush=True)
+              f"ms) | {loop_part}{out_part}", flush=True)
     return rows
 
 

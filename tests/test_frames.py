@@ -77,6 +77,34 @@ def test_frames_with_nan_targets_are_named(horse_rig):
     assert finite.tolist() == [True, True, False, True, False, True]
 
 
+def test_frames_into_a_donated_result_reuse_its_memory(horse_rig):
+    first, second = some_frames(horse_rig, 6, seed=3), some_frames(horse_rig, 6, seed=4)
+    out = mvcjax.deform_frames(horse_rig, first, chunk=4)
+    where = out.unsafe_buffer_pointer()
+    again = mvcjax.deform_frames(horse_rig, second, chunk=4, out=out)
+    assert out.is_deleted()
+    assert again.unsafe_buffer_pointer() == where  # the result lives in out's memory
+    np.testing.assert_array_equal(again, mvcjax.deform_frames(horse_rig, second, chunk=4))
+    # New numbers, same program.
+    compiled = mvcjax._frames._deform_into._cache_size()
+    mvcjax.deform_frames(horse_rig, first, chunk=4, out=again)
+    assert mvcjax._frames._deform_into._cache_size() == compiled
+
+
+def test_bad_out_is_explained(horse_rig):
+    frames = some_frames(horse_rig, 3)
+    out = mvcjax.deform_frames(horse_rig, frames)
+    with pytest.raises(ValueError, match="must have shape \\(2, "):
+        mvcjax.deform_frames(horse_rig, frames[:2], out=out)
+    with pytest.raises(TypeError, match="concrete JAX array.*got ndarray"):
+        mvcjax.deform_frames(horse_rig, frames, out=np.asarray(out))
+    with pytest.raises(ValueError, match="one device"):
+        mvcjax.deform_frames(horse_rig, frames, out=out, devices=jax.devices() * 2)
+    mvcjax.deform_frames(horse_rig, frames, out=out)
+    with pytest.raises(ValueError, match="deleted"):
+        mvcjax.deform_frames(horse_rig, frames, out=out)
+
+
 SHARDED = """
 import jax
 jax.config.update("jax_enable_x64", True)
