@@ -15,7 +15,8 @@ Three parts, float32, FixedG (15 iterations, the paper's), in one run:
   bandwidth; the fraction of the floor reached is floor / time.
 - batch: at about 6k and 20k vertices, B frames (1024 by default) through
   `jax.jit(jax.vmap(rig.deform))`, `jax.jit(jax.vmap(rig.solve))`,
-  `jax.jit(jax.vmap(rig.skin))` and `mvcjax.deform_frames`, each against a Python loop
+  `jax.jit(jax.vmap(rig.skin))` and `mvcjax.deform_frames` (also with `out=`, the
+  previous result's memory reused), each against a Python loop
   of the jitted single frame (`jax.jit(rig.deform)` and so on) over the same B frames
   (dispatched asynchronously, blocked once at the end): the loop's time over the
   batch's. Measured twice: with glibc's default malloc, which maps a batch's large
@@ -160,9 +161,16 @@ def _batch_paths(rig, batches):
     single = jax.jit(rig.deform)
     solve = jax.jit(rig.solve)
     controls = [jax.vmap(solve)(b) for b in batches]
+    held = [mvcjax.deform_frames(rig, batches[0])]
+
+    def into(b):  # each call reusing the previous result's memory
+        held[0] = mvcjax.deform_frames(rig, b, out=held[0])
+        return held[0]
+
     return {
         "vmap_deform": (jax.jit(jax.vmap(rig.deform)), single, batches),
         "deform_frames": (lambda b: mvcjax.deform_frames(rig, b), single, batches),
+        "deform_frames_out": (into, single, batches),
         "vmap_solve": (jax.jit(jax.vmap(rig.solve)), solve, batches),
         "vmap_skin": (jax.jit(jax.vmap(rig.skin)), jax.jit(rig.skin), controls),
     }
@@ -184,7 +192,7 @@ def run_batches(shape, handles, sizes, count: int, repeats: int, allocator: str)
             row[f"{name}_ms"] = median_ms(batched, [(b,) for b in inputs], repeats)
             row[f"{name}_loop_ms"] = median_ms(loop, [(b,) for b in inputs], max(3, repeats // 2))
             row[f"{name}_speedup"] = row[f"{name}_loop_ms"] / row[f"{name}_ms"]
-            print(f"V_S={row['shape_vertices']:>6} {count} frames {name:>13} ({allocator}): batch "
+            print(f"V_S={row['shape_vertices']:>6} {count} frames {name:>17} ({allocator}): batch "
                   f"{row[f'{name}_ms']:8.1f} ms ({count / row[f'{name}_ms'] * 1e3:8.0f} "
                   f"frames/s), loop {row[f'{name}_loop_ms']:8.1f} ms, batch/loop "
                   f"{row[f'{name}_speedup']:5.1f}x", flush=True)
