@@ -337,6 +337,33 @@ def frames_per_product(shape_vertices: int) -> int:
     return 1 << min(7, max(3, (2**24 // max(shape_vertices, 1)).bit_length() - 1))
 
 
+def skin_frames_into(skinning: Skinning, control_vertices: Float[Array, "f c 2"], frame,
+                     out: Float[Array, "f n 2"]) -> Float[Array, "f n 2"]:
+    """The skinning of many frames written into `out` (its values unused), a group of
+    frames (`frames_per_product`) at a time.
+
+    Given a donated `out`, the result takes its memory and nothing is filled first:
+    `jax.vmap` of the skinning loops into a new array filled with zeros (at 6k and 20k
+    shape vertices and 1024 frames, 1.1 times the time)."""
+    frames = control_vertices.shape[0]
+    if skinning.block_weights.shape[0] == 0:  # rows too scattered for blocks
+        skinned = jax.lax.map(lambda v: _skin_in(skinning, v, frame), control_vertices)
+        return jax.lax.dynamic_update_slice_in_dim(out, skinned, 0, 0)
+    group = min(frames, frames_per_product(skinning.slots.shape[0]))
+    whole = frames // group
+
+    def one_group(i, out):
+        v = jax.lax.dynamic_slice_in_dim(control_vertices, i * group, group)
+        return jax.lax.dynamic_update_slice_in_dim(out, _skin_blocks(skinning, v, frame),
+                                                   i * group, 0)
+
+    out = jax.lax.fori_loop(0, whole, one_group, out)
+    if frames > whole * group:
+        rest = _skin_blocks(skinning, control_vertices[whole * group:], frame)
+        out = jax.lax.dynamic_update_slice_in_dim(out, rest, whole * group, 0)
+    return out
+
+
 def _skin_frames(frames: int, in_batched, skinning: Skinning, control_vertices, frame):
     """`jax.vmap` of the skinning over control vertices: `_skin_blocks`, a few frames at
     a time (`frames_per_product`).

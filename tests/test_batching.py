@@ -118,6 +118,27 @@ def test_points_in_no_order_skip_the_blocks(horse_rig):
         np.testing.assert_allclose(many[k], single(control[k]), atol=1e-9)
 
 
+@pytest.mark.parametrize("frames, group", [(5, None), (37, 8)])
+def test_skinning_into_an_array_matches_single_frames(horse_rig, frames, group, monkeypatch):
+    # Groups of 8 for 37 frames: four in the loop, the last five after it.
+    if group:
+        monkeypatch.setattr(_skinning, "frames_per_product", lambda n: group)
+    control = jax.vmap(horse_rig.solve)(some_frames(horse_rig, frames, seed=5))
+    local = jax.vmap(horse_rig.frame.to_local)(control)
+    out = jnp.full((frames, *horse_rig.shape_mesh.vertices.shape), jnp.nan)
+    into = jax.jit(_skinning.skin_frames_into)(horse_rig.skinning, local, horse_rig.frame, out)
+    single = jax.jit(horse_rig.skin)
+    for k in range(frames):
+        np.testing.assert_allclose(into[k], single(control[k]), atol=1e-9)
+    # Scattered points have no blocks: their frames are mapped one by one.
+    vertices = np.asarray(horse_rig.shape_mesh.vertices)
+    scattered = horse_rig.weights_at(vertices[np.random.default_rng(1).permutation(len(vertices))])
+    assert scattered.block_weights.shape[0] == 0
+    into = _skinning.skin_frames_into(scattered, local, horse_rig.frame, out)
+    np.testing.assert_allclose(into[-1], jax.jit(scattered)(local[-1], horse_rig.frame),
+                               atol=1e-9)
+
+
 def test_blocks_hold_the_rows_exactly(horse_rig):
     # Each block's dense weights are the rows of W, in order: W from the blocks equals
     # W from the packed tiles (both from the same rows).
