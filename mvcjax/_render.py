@@ -45,6 +45,8 @@ _SHADE_CHUNK = 8192
 # Coverage steps in a candidate's key, and the draw levels of the default order.
 _COVERAGE_BITS = 6
 _MOVED_LEVELS = 16
+# Moves below this fraction of the rest mesh's size do not raise a triangle's draw level.
+_STILL = 1e-3
 # Triangles offer their candidate pixels in square tiles of one of these sides: the one
 # with the fewest candidates for the rest mesh at the picture's resolution.
 _TILES = (2, 4, 8, 16)
@@ -547,8 +549,13 @@ def _levels_of(renderer: Renderer, vertices):
     vertices = jax.lax.stop_gradient(vertices)
     moved = jnp.sqrt(jnp.sum((vertices - renderer.rest) ** 2, axis=-1)[renderer.faces].sum(axis=1))
     top = min(_MOVED_LEVELS, _key_layout(renderer.faces.shape[0])[1]) - 1
-    scale = jnp.where(moved.max() > 0, top / moved.max(), 0.0)
-    return jnp.clip(jnp.round(moved * scale), 0, top).astype(jnp.int32)
+    # Steps of the largest move, but never finer than a thousandth of the rest mesh's
+    # size: otherwise a pose at rest to rounding (rig.deform of the rest targets) would
+    # be ordered by its rounding errors, which differ from one program to another.
+    extent = jnp.linalg.norm(jnp.max(renderer.rest, axis=0) - jnp.min(renderer.rest, axis=0))
+    unit = jnp.maximum(jnp.maximum(moved.max(), _STILL * 3 * extent),  # moved sums three
+                       jnp.finfo(moved.dtype).tiny)
+    return jnp.clip(jnp.round(moved * (top / unit)), 0, top).astype(jnp.int32)
 
 
 def _face_table(tri, texture_tri, boundary):
