@@ -322,10 +322,14 @@ def _skin_blocks(skinning: Skinning, control_vertices: Float[Array, "f c 2"], fr
     """Many frames' skinning as one batched product over the blocks of consecutive rows
     (`pack_blocks`), with frames and coordinates as the rows of its right-hand side."""
     frames, n = control_vertices.shape[0], skinning.slots.shape[0]
-    columns = jnp.swapaxes(control_vertices, 1, 2).reshape(2 * frames, -1)  # (2f, c)
-    gathered = jnp.swapaxes(columns[:, skinning.block_indices], 0, 1)  # (b, 2f, k)
-    blocks = jnp.einsum("bxk,bkr->bxr", gathered, skinning.block_weights)  # (b, 2f, r)
-    rows = jnp.swapaxes(jnp.swapaxes(blocks, 0, 1).reshape(frames, 2, -1)[:, :, :n], 1, 2)
+    # Coordinate planes, frames last: gathering a block's control vertices moves whole
+    # rows of 2f numbers, and the product's rows are the x of every frame, then the y.
+    columns = jnp.transpose(control_vertices, (1, 2, 0)).reshape(-1, 2 * frames)  # (c, 2f)
+    blocks = jnp.einsum("bkx,bkr->bxr", columns[skinning.block_indices],
+                        skinning.block_weights)  # (b, 2f, r)
+    b, _, r = blocks.shape
+    rows = jnp.transpose(blocks.reshape(b, 2, frames, r), (2, 0, 3, 1)).reshape(frames, b * r, 2)
+    rows = rows[:, :n]
     return rows if frame is None else frame.to_world(rows)
 
 
