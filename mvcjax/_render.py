@@ -271,7 +271,8 @@ class Renderer(JittableModule):
                 on top (a triangle's depth is its vertices' mean; `depth_from_handles`
                 spreads a depth per handle over a rig's mesh). Default: in each pose, the
                 triangles that moved further from rest lie on top (in 16 steps of the
-                largest move), so that a dragged part passes over the rest of the shape.
+                largest move; moves under a thousandth of the mesh's size count as
+                none), so that a dragged part passes over the rest of the shape.
             antialias: smooth (and differentiable) boundary edges; False draws hard edges
                 at about half the cost.
             alpha: where the drawn shape's edge comes from. `"mesh"` (default): the mesh

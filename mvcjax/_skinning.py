@@ -373,11 +373,12 @@ def _skin_frames(frames: int, in_batched, skinning: Skinning, control_vertices, 
     a time (`frames_per_product`).
 
     Each block's product is dense over its few dozen control vertices (at 6k shape
-    vertices, 19 nonzeros a row against 45 columns a block; a dense `W` over all 160
-    wastes nine products in ten) and runs at matrix-product speed, where mapping the
-    single frame's sparse skinning over frames gathers element by element: 15 to 23
-    against 37 to 62 microseconds a frame at 6k shape vertices, 46 to 110 against 180
-    at 20k (`benchmarks/frames.py` measures the whole frame)."""
+    vertices, 12 nonzeros a row on average, 19 at most, against 45 columns a block; a
+    dense `W` over all 160 wastes nine products in ten) and runs at matrix-product
+    speed, where mapping the single frame's sparse skinning over frames gathers element
+    by element: 18 to 29 microseconds a frame at 6k shape vertices and 57 to 91 at 20k
+    for 1024 frames (`benchmarks/throughput.py`, memory reused or fresh), against 37 to
+    62 and 180 mapped (measured when this rule was written)."""
     if not only_batched(in_batched, 1):
         return None
     if skinning.block_weights.shape[0] == 0:  # rows too scattered for blocks
