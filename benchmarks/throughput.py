@@ -170,15 +170,14 @@ def run_frames(shape, handles, sizes, repeats: int, bandwidth: float) -> list[di
     return rows
 
 
-def _batch_paths(rig, batches):
-    """Each batched path with the single frame whose loop it is measured against, and its
-    inputs: the natural spellings."""
+def _batch_paths(rig, batches, singles):
+    """Each batched path with the single frame whose loop it is measured against (a key
+    of `singles`, the jitted single frames), and its inputs: the natural spellings."""
     import jax
 
     import mvcjax
 
-    solve = jax.jit(rig.solve)
-    controls = [jax.vmap(solve)(b) for b in batches]
+    controls = [jax.vmap(singles["solve"])(b) for b in batches]
     held = [mvcjax.deform_frames(rig, batches[0])]
 
     def into(b):  # each call reusing the previous result's memory
@@ -244,9 +243,9 @@ def run_batches(shape, handles, sizes, count: int, repeats: int, allocator: str)
         batches = [_targets(rig, count, seed) for seed in range(2)]
         row = {"target_shape_vertices": target, "frames": count, "allocator": allocator,
                "shape_vertices": int(rig.shape_mesh.vertices.shape[0])}
-        paths = _batch_paths(rig, batches)
         singles = {"deform": jax.jit(rig.deform), "solve": jax.jit(rig.solve),
                    "skin": jax.jit(rig.skin)}
+        paths = _batch_paths(rig, batches, singles)
         timed = {}
         for name, (batched, single, inputs) in paths.items():
             row[f"{name}_compile_ms"] = compile_ms(batched, inputs[0])
