@@ -61,6 +61,7 @@ from ._solvers import (
     AbstractSolver as AbstractSolver,
     Dogleg as Dogleg,
     FixedG as FixedG,
+    FoldFree as FoldFree,
     GaussNewton as GaussNewton,
     JaxoptGaussNewton as JaxoptGaussNewton,
     JaxoptLevenbergMarquardt as JaxoptLevenbergMarquardt,

@@ -139,6 +139,8 @@ class Energy(eqx.Module):
         edge_length: `(e,)` their rest lengths.
         handles: `(h,)` the control vertex of each row of `C` (each point a handle pins;
             bones sharing a joint pin its vertex twice).
+        faces: `(f, 3)` the control mesh's counter-clockwise triangles (not a term of
+            the energy: what a fold is counted on, and what `FoldFree` keeps unfolded).
         weights: the term weights.
         scale: rest bounding-box diagonal, the unit of tolerances.
     """
@@ -152,6 +154,7 @@ class Energy(eqx.Module):
     edges: Int[Array, "e 2"]
     edge_length: Float[Array, " e"]
     handles: Int[Array, " h"]
+    faces: Int[Array, "f 3"]
     weights: Weights
     scale: Float[Array, ""]
 

@@ -149,10 +149,17 @@ class AbstractFactor(eqx.Module):
     def handle_part(self, targets: Float[Array, "h 2"]) -> StepData:
         """What the handle targets fix for every step (computed once per solve)."""
 
-    @abc.abstractmethod
     def step(self, columns: Float[Array, "2 n"], handle_part: StepData) -> Float[Array, "2 n"]:
         """One fixed-G iteration `G b(V)` on the vertices' coordinate rows `V^T`, given
         `handle_part(targets)`."""
+        return self.global_step(self.local_targets(columns), handle_part)
+
+    @abc.abstractmethod
+    def global_step(self, local: Complex[Array, " m"], handle_part: StepData
+                    ) -> Float[Array, "2 n"]:
+        """`G b` for given Laplacian and edge targets `[delta; e]` (complex, in the local
+        rows' order) and the handle targets of `handle_part`: the vertices, coordinate
+        rows, that meet them best."""
 
     def handle_part_frames(self, targets: Float[Array, "f h 2"]) -> StepData:
         """`handle_part` for many frames: `constant` is `(n, 2, f)`, vertices first and
@@ -270,8 +277,8 @@ class DenseFactor(AbstractFactor):
         return StepData(self.local_targets(self.rest),
                         self.rest + self.target_shift(targets) @ self.handle.T)
 
-    def step(self, columns, handle_part):
-        b = self.local_targets(columns) - handle_part.rest_local
+    def global_step(self, local, handle_part):
+        b = local - handle_part.rest_local
         return jnp.stack([jnp.real(b), jnp.imag(b)]) @ self.shape + handle_part.constant
 
     def step_frames(self, vertices, data):
@@ -436,9 +443,9 @@ class SparseFactor(AbstractFactor):
         return StepData(self.local_targets(self.rest), jnp.zeros((2, n), targets.dtype).at[
             :, self.handles].add(self.handle_weight * self.target_shift(targets)))
 
-    def step(self, columns, handle_part):
+    def global_step(self, local, handle_part):
         # A^T W t: scatter each row's weighted target back onto its vertices.
-        t = self.row_weight * (self.local_targets(columns) - handle_part.rest_local)
+        t = self.row_weight * (local - handle_part.rest_local)
         z = apply_stencils_transpose(self.rows, self.coef, t, self.host.size)
         rhs = jnp.stack([jnp.real(z), jnp.imag(z)], axis=1) + handle_part.constant.T
         return self.rest + self._solve(rhs).T

@@ -28,7 +28,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 from ._checks import kind_of
 from ._render import Renderer, _picture, check_drawn_mesh, in_window
 from ._rig import Rig
-from ._solvers import AbstractSolver, FixedG
+from ._solvers import DEFAULT_SOLVER, AbstractSolver
 
 _CHANNELS = ("rgba", "alpha")
 
@@ -86,7 +86,7 @@ def _check_pair(rig, renderer) -> None:
 
 def _check_solver(solver) -> AbstractSolver:
     if solver is None:
-        return FixedG()
+        return DEFAULT_SOLVER
     if not isinstance(solver, AbstractSolver):
         raise TypeError(f"solver must be an mvcjax solver such as mvcjax.FixedG() (the "
                         f"deformation's), or None for rig.deform's default, got {solver!r}.")
@@ -236,7 +236,7 @@ def image_loss(
         blur: the standard deviation, in pixels, of a Gaussian blur of both pictures
             (0: none). A wider blur lets the gradient see a silhouette or a texture
             further away than the one-pixel antialiased edge.
-        solver: the deformation's solver, as in `rig.deform` (default `FixedG()`).
+        solver: the deformation's solver, as in `rig.deform` (default: `rig.deform`'s).
 
     Returns:
         The scalar loss, in the renderer's dtype.
@@ -378,8 +378,8 @@ def fit_targets(
         method: an optimistix Gauss-Newton-type least-squares solver
             (`optx.LevenbergMarquardt`, `optx.GaussNewton`, `optx.Dogleg`); it overrides
             `rtol` and `atol`. Default `optx.LevenbergMarquardt(rtol, atol)`.
-        solver: the deformation's solver, as in `rig.deform` (default `FixedG()`, a
-            fixed loop that forward mode differentiates). The targets found are right
+        solver: the deformation's solver, as in `rig.deform` (default: `rig.deform`'s,
+            a fixed loop that forward mode differentiates). The targets found are right
             for this solver's deformation.
         warn: warn (`RuntimeWarning`) if the last stage did not converge.
 

@@ -16,7 +16,7 @@ from jaxtyping import Array, Float
 from ._checks import kind_of
 from ._rig import Rig, solve_in_frame
 from ._skinning import skin_frames_into
-from ._solvers import AbstractSolver, FixedG
+from ._solvers import DEFAULT_SOLVER, AbstractSolver
 
 
 def _pad_frames(targets, multiple: int):
@@ -35,7 +35,7 @@ def _solve_chunked(rig: Rig, targets, solver: AbstractSolver, chunk: int):
     frames = targets.shape[0]
     chunk = min(chunk, frames)
     targets = _pad_frames(targets, chunk)
-    control = jax.lax.map(jax.vmap(lambda t: solve_in_frame(rig, t, solver, "rigid")[0]),
+    control = jax.lax.map(jax.vmap(lambda t: solve_in_frame(rig, t, solver, "turned")[0]),
                           targets.reshape(-1, chunk, *targets.shape[1:]))
     return control.reshape(-1, *control.shape[2:])[:frames]
 
@@ -98,7 +98,7 @@ def _deform_sharded(rig: Rig, targets, solver: AbstractSolver, chunk: int, mesh:
 def deform_frames(
     rig: Rig,
     targets: Any,
-    solver: AbstractSolver = FixedG(),
+    solver: AbstractSolver = DEFAULT_SOLVER,
     *,
     chunk: Any = 1024,
     devices: Any = None,
@@ -116,7 +116,8 @@ def deform_frames(
     Args:
         rig: the rig.
         targets: `(frames, h, 2)` handle targets, one row of targets per frame.
-        solver: the solver of every frame (default: the paper's `FixedG()`).
+        solver: the solver of every frame (default: `rig.deform`'s), each from the
+            turned start (`Rig.start`).
         chunk: frames solved together on a device. Working memory grows little with
             it (a few numbers per control vertex and frame); the result itself takes
             `frames * n * 2` numbers.

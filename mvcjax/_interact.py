@@ -7,6 +7,12 @@ outline) are drawn once and kept as a bitmap, and each move restores that bitmap
 only the moving artists and copies the axes' box to the screen. A full redraw of a
 figure costs tens of milliseconds; a blit a few.
 
+Folds are shown as they happen: the program also marks the shape triangles whose
+orientation left their rest orientation, and those are drawn red over the shape, with a
+hint that counts them. The hint is drawn as a path (glyph outlines, kept per digit):
+matplotlib's text draws each glyph anew on every draw, milliseconds that a blit would pay
+on every update.
+
 Any interactive matplotlib backend works: a desktop window (`QtAgg`, `TkAgg`, `MacOSX`)
 or Jupyter through ipympl (`%matplotlib widget`). Canvases that cannot blit (vector
 backends) fall back to `draw_idle`, which is slower but correct; the inline backend
@@ -16,6 +22,7 @@ draws a still picture only, so nothing can be dragged there.
 from __future__ import annotations
 
 import functools
+import re
 import time
 from typing import Any
 
@@ -24,28 +31,38 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._folds import signed_areas
 from ._frames import deform_frames
 from ._render import Renderer, _window, check_drawn_mesh, fit_window, in_window
 from ._rig import Rig
-from ._solvers import AbstractSolver, FixedG
+from ._solvers import DEFAULT_SOLVER, AbstractSolver, FoldFree
 from ._topology import boundary_loops, edges
 
 _HANDLE_STYLE = {"marker": "o", "markersize": 9, "color": "tab:red", "markeredgecolor": "white",
                  "markeredgewidth": 1.2, "linestyle": "none"}
 _ADD_HINT = ("adding or removing a handle needs a new rig:\n"
              "mvcjax.Rig.build(shape, handles), then interact again")
+_FOLD_STYLE = {"facecolor": (0.85, 0.05, 0.05, 0.55), "edgecolor": (0.85, 0.05, 0.05, 0.9),
+               "linewidth": 0.6}
+_HINT_COLOR = "#b01010"
+_HINT_FONT_POINTS = 8.0
 
 
 def _pose(rig: Rig, renderer: Renderer | None, solver: AbstractSolver,
-          targets: Float[Array, "h 2"]):
-    """The control and shape meshes for these targets and, with a renderer, the picture as
-    `uint8` RGBA (a quarter of the bytes to hand to matplotlib, which draws those fastest)."""
+          rest_sign: np.ndarray, targets: Float[Array, "h 2"]):
+    """The control and shape meshes for these targets; with a renderer, the picture as
+    `uint8` RGBA (a quarter of the bytes to hand to matplotlib, which draws those fastest);
+    which shape triangles are flipped (their signed area's sign is not `rest_sign`, as
+    `flipped_triangles` counts them), and how many."""
     control = rig.solve(targets, solver)
     shape = rig.skin(control)
+    flipped = jnp.sign(signed_areas(shape, rig.shape_mesh.faces)) != rest_sign
+    folds = jnp.sum(flipped, dtype=jnp.int32)
     if renderer is None:
-        return control, shape, None
+        return control, shape, None, flipped, folds
     picture = renderer(shape)
-    return control, shape, jnp.round(jnp.clip(picture, 0, 1) * 255).astype(jnp.uint8)
+    picture = jnp.round(jnp.clip(picture, 0, 1) * 255).astype(jnp.uint8)
+    return control, shape, picture, flipped, folds
 
 
 def _outline_codes(loops: list[np.ndarray]) -> np.ndarray:
@@ -70,13 +87,60 @@ def _segments(points: np.ndarray, pairs: np.ndarray) -> tuple[np.ndarray, np.nda
     return segments[..., 0].ravel(), segments[..., 1].ravel()
 
 
+def _signed_areas(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Twice each triangle's signed area, on the host (`signed_areas` for numpy)."""
+    a, b, c = (points[faces[:, i]] for i in range(3))
+    return (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+
+
+def _triangle_codes(count: int) -> np.ndarray:
+    """Path codes of `count` closed triangles, four vertices each."""
+    from matplotlib.path import Path
+
+    one = np.array([Path.MOVETO, Path.LINETO, Path.LINETO, Path.CLOSEPOLY], Path.code_type)
+    return np.tile(one, count)
+
+
+@functools.cache
+def _glyphs(text: str, points: float):
+    """`text` as a path in points (baseline at y = 0) and its advance width."""
+    from matplotlib.font_manager import FontProperties
+    from matplotlib.textpath import TextPath, text_to_path
+
+    font = FontProperties(size=points)
+    width = text_to_path.get_text_width_height_descent(text, font, ismath=False)[0]
+    return TextPath((0, 0), text, prop=font), width
+
+
+def _text_path(text: str, points: float):
+    """`text` as one path in points, put together from cached pieces (each digit, and
+    each run of other characters), so that a count that changes costs no font work."""
+    from matplotlib.path import Path
+
+    pieces, x = [], 0.0
+    for piece in re.findall(r"\d|\D+", text):
+        path, width = _glyphs(piece, points)
+        if len(path.vertices):
+            pieces.append(Path(path.vertices + (x, 0.0), path.codes))
+        x += width
+    return Path.make_compound_path(*pieces) if pieces else Path(np.empty((0, 2)))
+
+
+def _fold_words(folds: int, solver: AbstractSolver) -> str:
+    words = f"{folds} triangle{'s' if folds != 1 else ''} folded"
+    if isinstance(solver, FoldFree):
+        return words
+    return words + ": try solver=mvcjax.FoldFree()"
+
+
 class Posing:
     """A live session posing a rig with the mouse; make one with `mvcjax.interact`.
 
     Press on a red dot (a handle's target) and drag it: the shape follows while the mouse
     moves. Right-click a dot to put it back at rest. The session keeps what a user wants
     to keep: the current `targets`, the pose (`shape_vertices`), and, while recording,
-    every pose of a drag (`recorded`, `frames`, `write_animation`).
+    every pose of a drag (`recorded`, `frames`, `write_animation`). Shape triangles turned
+    inside out (a fold) are drawn red while they are, and counted in `folds`.
 
     Attributes:
         rig: the rig being posed.
@@ -84,14 +148,20 @@ class Posing:
         solver: the solver of every update.
         figure, axes: the matplotlib figure and axes it draws in.
         targets: `(h, 2)` the current targets (numpy; a copy is kept by the session).
+        folds: how many shape triangles the current pose turned inside out (their
+            orientation is not their rest orientation; `mvcjax.flipped_triangles` of
+            the rest and current shape meshes). Counted with or without `show_folds`.
+        show_folds: whether folded triangles are drawn, and counted in a hint.
+        hint: the fold hint drawn in the axes' top left corner ("" while nothing is
+            folded, or without `show_folds`).
         updates: how many poses were drawn.
         update_seconds: the wall time of each update, from the mouse event to the blit.
     """
 
     def __init__(self, rig: Any, image: Any = None, *, ax: Any = None,
-                 solver: Any = FixedG(), size: Any = None, window: Any = None,
+                 solver: Any = DEFAULT_SOLVER, size: Any = None, window: Any = None,
                  margin: Any = 0.3, control_mesh: Any = True, record: Any = False,
-                 pick_radius: Any = 12.0, renderer: Any = None,
+                 pick_radius: Any = 12.0, renderer: Any = None, show_folds: Any = True,
                  **render_options: Any):
         import matplotlib.pyplot as plt
 
@@ -113,7 +183,10 @@ class Posing:
                             f"{type(ax).__name__}.")
         self.rig, self.solver = rig, solver
         self._control_mesh_wanted = bool(control_mesh)
+        self.show_folds = bool(show_folds)
         rest = np.asarray(rig.shape_mesh.vertices, np.float64)
+        self._faces = np.asarray(rig.shape_mesh.faces, np.int64)
+        rest_sign = np.sign(_signed_areas(rest, self._faces)).astype(np.int8)
         self._rest_targets = np.asarray(rig.handle_positions, np.float64)
         if window is None:
             window = (renderer.window if renderer is not None
@@ -135,7 +208,7 @@ class Posing:
             check_drawn_mesh(renderer, rig.shape_mesh.vertices, rig.shape_mesh.faces)
         self.renderer = renderer
         # The rig, renderer and solver are constants of the session's one program.
-        self._pose = jax.jit(lambda t: _pose(rig, renderer, solver, t))
+        self._pose = jax.jit(lambda t: _pose(rig, renderer, solver, rest_sign, t))
         self._dtype = np.dtype(rig.energy.rest.dtype)
         self._pick_radius = float(pick_radius)
         self._bones = np.asarray(rig.handles.bones, np.int64).reshape(-1, 2)
@@ -150,7 +223,7 @@ class Posing:
         self._recording, self._recorded, self._times = bool(record), [], []
 
         self._draw_static(rest)
-        self._control_vertices, self._shape, self._picture = self._solve(self.targets)
+        self._solve(self.targets)
         self._draw_pose()
         canvas = self.figure.canvas
         self._connections = [
@@ -291,9 +364,52 @@ class Posing:
         # of glyphs each time.
         self._status = ax.text(0.01, 0.01, "", transform=ax.transAxes, fontsize=8,
                                color="0.3", zorder=6, **animated)
+        self._fold_patch = self._fold_hint = None
+        if self.show_folds:
+            from matplotlib.patches import PathPatch
+            from matplotlib.path import Path
+            from matplotlib.transforms import Affine2D, ScaledTranslation
 
-    def _solve(self, targets: np.ndarray):
-        return jax.block_until_ready(self._pose(jnp.asarray(targets.astype(self._dtype))))
+            # Over the shape or picture, under the control mesh and the handles.
+            self._fold_patch = PathPatch(Path(np.empty((0, 2))), zorder=2.5, visible=False,
+                                         **_FOLD_STYLE, **animated)
+            ax.add_patch(self._fold_patch)
+            self._fold_codes = _triangle_codes(len(self._faces))
+            # Glyph outlines in points, placed a little in from the axes' top left corner.
+            points = (Affine2D().translate(4.0, -4.0 - _HINT_FONT_POINTS).scale(1 / 72)
+                      + self.figure.dpi_scale_trans
+                      + ScaledTranslation(0.0, 1.0, ax.transAxes))
+            self._fold_hint = PathPatch(Path(np.empty((0, 2))), facecolor=_HINT_COLOR,
+                                        edgecolor="none", transform=points, zorder=6,
+                                        visible=False, **animated)
+            ax.add_artist(self._fold_hint)
+        self._hinted_folds, self.hint = 0, ""
+
+    def _solve(self, targets: np.ndarray) -> None:
+        pose = jax.block_until_ready(self._pose(jnp.asarray(targets.astype(self._dtype))))
+        self._control_vertices, self._shape, self._picture, self._flipped, folds = pose
+        self.folds = int(folds)
+
+    def _draw_folds(self) -> None:
+        from matplotlib.path import Path
+
+        folds = self.folds
+        if folds:
+            # The mask is fetched only when something is folded, and the path holds the
+            # folded triangles alone: a pose without folds costs the count, nothing more.
+            shape = np.asarray(self._shape)
+            corners = shape[self._faces[np.asarray(self._flipped)]]
+            vertices = np.concatenate([corners, corners[:, :1]], axis=1).reshape(-1, 2)
+            self._fold_patch.set_path(Path(vertices, self._fold_codes[:len(vertices)]))
+        if self._fold_patch.get_visible() != bool(folds):
+            self._fold_patch.set_visible(bool(folds))
+        if folds != self._hinted_folds:
+            # Rebuilt only when the count changes: a blit redraws the path, never the font.
+            self._hinted_folds = folds
+            self.hint = _fold_words(folds, self.solver) if folds else ""
+            if folds:
+                self._fold_hint.set_path(_text_path(self.hint, _HINT_FONT_POINTS))
+            self._fold_hint.set_visible(bool(folds))
 
     def _draw_pose(self) -> None:
         if self._image is not None:
@@ -308,10 +424,13 @@ class Posing:
                                               self._control_edges))
         self._handles.set_data(self.targets[:, 0], self.targets[:, 1])
         self._bone_line.set_data(*_segments(self.targets, self._bones))
+        if self.show_folds:
+            self._draw_folds()
 
     def _artists(self):
-        return [a for a in (self._image, self._patch, self._control, self._bone_line,
-                            self._handles, self._status) if a is not None]
+        return [a for a in (self._image, self._patch, self._fold_patch, self._control,
+                            self._bone_line, self._handles, self._status, self._fold_hint)
+                if a is not None]
 
     def _blit(self) -> None:
         canvas = self.figure.canvas
@@ -325,7 +444,7 @@ class Posing:
 
     def _update(self) -> None:
         start = time.perf_counter()
-        self._control_vertices, self._shape, self._picture = self._solve(self.targets)
+        self._solve(self.targets)
         self._draw_pose()
         self._blit()
         self.update_seconds.append(time.perf_counter() - start)
@@ -439,16 +558,18 @@ def _can_blit(canvas) -> bool:
     return hasattr(canvas, "copy_from_bbox") and hasattr(canvas, "restore_region")
 
 
-def interact(rig: Any, image: Any = None, *, ax: Any = None, solver: Any = FixedG(),
+def interact(rig: Any, image: Any = None, *, ax: Any = None, solver: Any = DEFAULT_SOLVER,
              size: Any = None, window: Any = None, margin: Any = 0.3,
              control_mesh: Any = True, record: Any = False, pick_radius: Any = 12.0,
-             renderer: Any = None, **render_options: Any) -> Posing:
+             renderer: Any = None, show_folds: Any = True,
+             **render_options: Any) -> Posing:
     """Pose `rig` with the mouse: a figure in which dragging a handle moves the shape.
 
     Press on a red dot (a handle's target) and drag; the shape, or its picture, follows
     while the mouse moves. Right-click a dot to send it back to rest. Adding or removing
     a handle changes the control mesh, so it needs a new rig: `Rig.build(shape, handles)`,
-    then `interact` again.
+    then `interact` again. Where the pose folds the shape (triangles turned inside out),
+    those triangles are drawn red and a hint counts them, while they are folded.
 
     Needs an interactive matplotlib backend: in Jupyter, `pip install 'mvcjax[widget]'`
     (ipympl) and run `%matplotlib widget` first; in a script, a desktop backend (the
@@ -460,7 +581,10 @@ def interact(rig: Any, image: Any = None, *, ax: Any = None, solver: Any = Fixed
             an array or a file path); None draws it filled, or, with `size` or other
             render options, with a checkerboard.
         ax: the matplotlib axes to draw in (default: a new 6 x 6 inch figure).
-        solver: the solver of every update (default: the paper's `FixedG()`).
+        solver: the solver of every update, any mvcjax solver. Default: the one
+            `rig.deform` uses when given none, so that a pose here is the pose
+            `rig.deform(posing.targets)` gives. `mvcjax.FoldFree()` never folds the
+            control mesh: the choice where folds must not happen.
         size: `(rows, cols)` of the drawn picture, when there is one. Default: the axes'
             size in pixels, which draws fastest (the picture is copied pixel for pixel).
         window: the rectangle `(xmin, ymin, xmax, ymax)` shown; default the rest shape
@@ -470,12 +594,14 @@ def interact(rig: Any, image: Any = None, *, ax: Any = None, solver: Any = Fixed
         record: record from the start (see `Posing.record`).
         pick_radius: how near (in screen pixels) a press must be to a dot to grab it.
         renderer: a `Renderer` built for this rig, instead of `image` and its options.
+        show_folds: draw the folded shape triangles red over the shape, with a hint that
+            counts them; False draws neither (`Posing.folds` still counts them).
         **render_options: more options of `Renderer.build` (`fill`, `alpha`, `depth`...).
 
     Returns:
-        The `Posing`: keep it (it holds the figure's callbacks), read `targets` and
-        `shape_vertices`, and `frames()` / `write_animation()` a recorded drag.
+        The `Posing`: keep it (it holds the figure's callbacks), read `targets`,
+        `shape_vertices` and `folds`, and `frames()` / `write_animation()` a recorded drag.
     """
     return Posing(rig, image, ax=ax, solver=solver, size=size, window=window, margin=margin,
                   control_mesh=control_mesh, record=record, pick_radius=pick_radius,
-                  renderer=renderer, **render_options)
+                  renderer=renderer, show_folds=show_folds, **render_options)

@@ -13,14 +13,17 @@ from jaxtyping import Array, ArrayLike, Float, Int
 from . import _coordinates as coords, _meshing as meshing, _topology as topology
 from ._checks import as_points, kind_of
 from ._control import PaperControl, as_control
-from ._energy import Energy, Weights, check_weights, rigid_start, total_energy
+from ._energy import Energy, Weights, check_weights, total_energy
 from ._factor import AbstractFactor, as_factor_method
+from ._folds import inverted_count
 from ._frame import Frame, bounding_frame, check_representable, frame_array, points_to_local
 from ._handles import Handles, check_handles, make_handles, pin
 from ._module import JittableModule
 from ._shape import Shape
 from ._skinning import BarycentricSkinning, Skinning, as_skinning
-from ._solvers import AbstractSolver, FixedG
+from ._solvers import DEFAULT_SOLVER, AbstractSolver
+from ._solvers._base import SkinnedMesh
+from ._start import STARTS, start_vertices, turn_weights
 from ._stencils import LAPLACIAN
 
 
@@ -202,6 +205,8 @@ class Rig(JittableModule):
         factor: the precomputed global step of the fixed-G iteration (the paper's dense
             `G`, or a sparse factor of the normal matrix for large control meshes).
         frame: the map between the user's coordinates and the rig's.
+        turns: `(c, r)` harmonic weights that spread the turn of each pinned row (its
+            bone's) over the control vertices, for the turned start (`Rig.start`).
     """
 
     shape_mesh: ShapeMesh
@@ -211,6 +216,7 @@ class Rig(JittableModule):
     energy: Energy
     factor: AbstractFactor
     frame: Frame
+    turns: Float[Array, "c r"]
 
     @classmethod
     def build(
@@ -342,6 +348,7 @@ class Rig(JittableModule):
             energy=energy,
             factor=factor(energy),
             frame=frame_array(centre, scale, dtype),
+            turns=_array(turn_weights(control_vertices, control_faces, control_pinned), dtype),
         )
 
     # ---- using the rig --------------------------------------------------------------
@@ -378,13 +385,11 @@ class Rig(JittableModule):
         factor = self.factor.rebuild(energy)
         return eqx.tree_at(lambda r: (r.energy, r.factor), self, (energy, factor))
 
-    def _local_start(self, local_targets, init):
+    def _local_start(self, targets: Float[Array, "t 2"], init: Any) -> Float[Array, "c 2"]:
+        """The start for targets in the rig's frame (a row per target)."""
         if isinstance(init, str):
-            if init == "rigid":
-                return rigid_start(self.energy, local_targets)
-            if init == "rest":
-                return self.energy.rest
-            raise ValueError(f"init must be 'rigid', 'rest' or an array, got {init!r}.")
+            return start_vertices(self.energy, self.factor, self.handles, self.turns, targets,
+                                  init)
         init = jnp.asarray(init, self.energy.rest.dtype)
         if init.shape != self.energy.rest.shape:
             raise ValueError(
@@ -393,11 +398,21 @@ class Rig(JittableModule):
             )
         return self.frame.to_local(init)
 
-    def start(self, targets: Any, init: Any = "rigid") -> Float[Array, "c 2"]:
-        """Starting control vertices for `(h, 2)` targets: `"rigid"` (the rest mesh moved
-        rigidly to fit the targets), `"rest"` (the paper's), or an explicit `(c, 2)` array."""
-        return self.frame.to_world(self._local_start(self._pinned(self._check_targets(targets)),
-                                                     init))
+    def start(self, targets: Any, init: Any = "turned") -> Float[Array, "c 2"]:
+        """Starting control vertices for `(h, 2)` targets.
+
+        Args:
+            targets: `(h, 2)` where each handle should go.
+            init: `"turned"` (default: every bone's turn, and the handles' rigid turn,
+                spread over the control mesh, then one global step; a limb turned far
+                starts turned, not squeezed), `"rigid"` (the rest mesh moved rigidly to
+                fit the targets), `"rest"` (the paper's start), or an explicit `(c, 2)`
+                array (a previous frame's control vertices, for instance).
+        """
+        if isinstance(init, str) and init not in STARTS:
+            raise ValueError(f"init must be one of {STARTS} or a (c, 2) array, got {init!r}.")
+        return self.frame.to_world(
+            self._local_start(self.frame.to_local(self._check_targets(targets)), init))
 
     def _check_targets(self, targets) -> Float[Array, "h 2"]:
         h = self.handles.count
@@ -435,18 +450,23 @@ class Rig(JittableModule):
     def solve(
         self,
         targets: Any,
-        solver: Any = FixedG(),
+        solver: Any = DEFAULT_SOLVER,
         *,
-        init: Any = "rigid",
+        init: Any = "turned",
         return_info: bool = False,
     ):
         """Control vertices minimising the energy (6) for these handle targets.
 
         Args:
             targets: `(h, 2)` where each handle should go.
-            solver: a solver (default: the paper's `FixedG()`, 15 iterations).
-            init: the start, see `Rig.start`.
-            return_info: also return a `SolveInfo` (converged, iterations, energy).
+            solver: a solver. The default, `FixedG(iterations=60)` from the turned
+                start, comes near the minimum on poses that turn limbs far; the
+                paper's method is `FixedG()` (15 iterations) with `init="rest"`.
+                `mvcjax.FoldFree()` never folds the control mesh, and
+                `mvcjax.GaussNewton()` solves to a tolerance.
+            init: the start, see `Rig.start` (default `"turned"`).
+            return_info: also return a `SolveInfo` (converged, iterations, energy,
+                inverted control triangles, the largest handle miss).
 
         Returns:
             `(c, 2)` control vertices, and the `SolveInfo` if asked for.
@@ -461,7 +481,7 @@ class Rig(JittableModule):
         solver: Any,
         steps: Any,
         *,
-        init: Any = "rigid",
+        init: Any = "turned",
     ) -> Float[Array, " {steps+1}"]:
         """The energy (6) at the start and after each of `steps` steps of `solver`.
 
@@ -480,9 +500,9 @@ class Rig(JittableModule):
             raise TypeError(f"steps must be an int, got {steps!r}.")
         if steps < 1:
             raise ValueError(f"steps must be at least 1, got {steps}.")
-        targets = self._pinned(self._check_targets(targets))
-        history = solver.history(self.energy, self.factor, targets,
-                                 self._local_start(targets, init), steps)
+        local = self.frame.to_local(self._check_targets(targets))
+        history = solver.history(self.energy, self.factor, self.handles.pinned_targets(local),
+                                 self._local_start(local, init), steps)
         return history * self.frame.scale**2
 
     def energy_at(self, control_vertices: Float[ArrayLike, "c 2"],
@@ -515,9 +535,9 @@ class Rig(JittableModule):
     def deform(
         self,
         targets: Any,
-        solver: Any = FixedG(),
+        solver: Any = DEFAULT_SOLVER,
         *,
-        init: Any = "rigid",
+        init: Any = "turned",
         return_info: bool = False,
     ):
         """Solve, then skin: the deformed shape-mesh vertices `(n, 2)` (and the info) for
@@ -542,11 +562,19 @@ class Rig(JittableModule):
 
 
 def solve_in_frame(rig: Rig, targets, solver: AbstractSolver, init):
-    """The solve in the rig's frame: local control vertices, and the info with the energy
-    in the user's units."""
-    local_targets = rig._pinned(targets)
-    vertices, info = solver.solve(rig.energy, rig.factor, local_targets,
-                                  rig._local_start(local_targets, init))
+    """The solve in the rig's frame: local control vertices, and the info in the user's
+    units, with the folds and the handles' miss counted."""
+    local = rig.frame.to_local(targets)
+    pinned = rig.handles.pinned_targets(local)
+    shape = SkinnedMesh(rig.shape_mesh.faces, rig.skinning)
+    vertices, info = solver.solve_skinned(rig.energy, rig.factor, pinned,
+                                          rig._local_start(local, init), shape)
+    energy = rig.energy
+    miss = jnp.sqrt(jnp.max(jnp.sum((vertices[energy.handles] - pinned) ** 2, axis=1)))
+    info = eqx.tree_at(
+        lambda i: (i.inverted, i.handle_miss), info,
+        (inverted_count(vertices, energy.faces, energy.rest), miss * rig.frame.scale),
+        is_leaf=lambda x: x is None)
     # In the user's units the energy can overflow where the rig's was finite: then it did
     # not converge.
     return vertices, info.rescaled(rig.frame.scale**2)
@@ -603,6 +631,7 @@ def _energy_data(vertices, faces, loops, inner, handles, weights, dtype) -> Ener
         edges=_ints(edges),
         edge_length=_array(edge_length, dtype),
         handles=_ints(handles),
+        faces=_ints(faces),
         weights=weights.astype(dtype),
         scale=_array(1.0, dtype),
     )

@@ -254,3 +254,154 @@ def test_a_picture_made_for_the_axes_is_drawn_where_matplotlib_would_draw_it(hor
     # They differ at edges only, by the box's sub-pixel place; a shift by one pixel, or a
     # flip, would differ at three times as many pixels or more.
     assert np.mean(difference > 8) < 0.04 and difference.mean() < 3
+
+
+BACK = 3  # the horse's back handle: pulled down through the legs, the legs fold
+FOLDING = np.array([0.0, -150.0])  # a pull of the back handle that folds the legs
+
+
+def red_pixels(posing):
+    """How many canvas pixels are the fold overlay's red over the filled shape."""
+    pixels = canvas_pixels(posing)
+    r, g, b = pixels[..., 0], pixels[..., 1], pixels[..., 2]
+    return int(np.sum((r > 190) & (g < 110) & (b < 90)))
+
+
+def folded_corners(rest, pose, faces):
+    """The corners of the triangles flipped between rest and pose, sorted, for comparing
+    sets of triangles."""
+    def signed(v):
+        (ax, ay), (bx, by), (cx, cy) = (v[faces[:, i]].T for i in range(3))
+        return (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+
+    flipped = np.sign(signed(rest)) != np.sign(signed(pose))
+    corners = pose[faces[flipped]].reshape(-1, 6)
+    return corners[np.lexsort(corners.T[::-1])]
+
+
+def test_a_drag_that_folds_draws_the_folded_triangles_red_without_recompiling(horse_rig):
+    solver = mvcjax.FixedG(iterations=15)
+    posing = started(mvcjax.interact(horse_rig, solver=solver))
+    rest_vertices = np.asarray(horse_rig.shape_mesh.vertices)
+    faces = np.asarray(horse_rig.shape_mesh.faces)
+    assert posing.folds == 0 and not posing._fold_patch.get_visible() and posing.hint == ""
+    unfolded_red = red_pixels(posing)
+    start = posing.targets[BACK].copy()
+    path = [start + FOLDING * step / 5 for step in range(1, 6)]
+    counts = []
+    with Compilations() as compiled:
+        mouse(posing, "button_press", start)
+        for point in path:
+            mouse(posing, "motion_notify", point)
+            counts.append(posing.folds)
+            expected = mvcjax.flipped_triangles(rest_vertices, posing.shape_vertices, faces)
+            assert posing.folds == expected
+        mouse(posing, "button_release", path[-1])
+    assert compiled.count == 0
+    assert len(set(counts)) > 1 and counts[-1] > 100  # the count followed the drag
+    np.testing.assert_allclose(posing.shape_vertices, horse_rig.deform(posing.targets, solver),
+                               atol=1e-9)
+    # The overlay holds the flipped triangles, each once, at their posed corners.
+    drawn = posing._fold_patch.get_path().vertices.reshape(-1, 4, 2)[:, :3].reshape(-1, 6)
+    assert posing._fold_patch.get_visible() and len(drawn) == posing.folds
+    np.testing.assert_array_equal(drawn[np.lexsort(drawn.T[::-1])],
+                                  folded_corners(rest_vertices, posing.shape_vertices, faces))
+    assert red_pixels(posing) > unfolded_red + 200
+    assert posing.hint == f"{posing.folds} triangles folded: try solver=mvcjax.FoldFree()"
+    assert posing._fold_hint.get_visible() and len(posing._fold_hint.get_path().vertices)
+    # What was blitted is what a full redraw draws, overlay and hint included.
+    blitted = canvas_pixels(posing)
+    posing.figure.canvas.draw()
+    assert np.abs(canvas_pixels(posing) - blitted).max() <= 2
+    # Back at rest: nothing folded, nothing red, no hint.
+    mouse(posing, "button_press", posing.targets[BACK], button=3)
+    assert posing.folds == 0 and posing.hint == ""
+    assert not posing._fold_patch.get_visible() and not posing._fold_hint.get_visible()
+    assert red_pixels(posing) == unfolded_red
+
+
+def test_a_pose_without_folds_draws_no_overlay(horse_rig):
+    posing = started(mvcjax.interact(horse_rig))
+    drag(posing, HEAD, [posing.targets[HEAD] + np.array([10.0, 5.0])])
+    faces = np.asarray(horse_rig.shape_mesh.faces)
+    assert mvcjax.flipped_triangles(horse_rig.shape_mesh.vertices, posing.shape_vertices,
+                                    faces) == 0
+    assert posing.folds == 0 and posing.hint == ""
+    assert not posing._fold_patch.get_visible() and not posing._fold_hint.get_visible()
+
+
+def test_show_folds_false_draws_no_overlay_and_still_counts(horse_rig):
+    targets = np.asarray(horse_rig.handle_positions).copy()
+    targets[BACK] += FOLDING
+    shown, hidden = (started(mvcjax.interact(horse_rig, show_folds=show))
+                     for show in (True, False))
+    for posing in (shown, hidden):
+        posing.set_targets(targets)
+    faces = np.asarray(horse_rig.shape_mesh.faces)
+    folds = mvcjax.flipped_triangles(horse_rig.shape_mesh.vertices, hidden.shape_vertices,
+                                     faces)
+    assert folds > 0 and hidden.folds == shown.folds == folds
+    assert hidden._fold_patch is None and hidden._fold_hint is None and hidden.hint == ""
+    assert red_pixels(shown) > red_pixels(hidden) + 200
+    # What was blitted is what a full redraw draws: nothing red left behind.
+    blitted = canvas_pixels(hidden)
+    hidden.figure.canvas.draw()
+    assert np.abs(canvas_pixels(hidden) - blitted).max() <= 2
+
+
+def test_the_fold_free_solver_poses_without_a_suggestion(horse_rig):
+    targets = np.asarray(horse_rig.handle_positions).copy()
+    targets[BACK] += 0.4 * FOLDING  # the default solver folds the control mesh here
+    control = horse_rig.control_mesh
+    posing = mvcjax.interact(horse_rig, solver=mvcjax.FoldFree())
+    posing.set_targets(targets)
+    assert mvcjax.flipped_triangles(control.vertices, posing.control_vertices,
+                                    control.faces) == 0
+    np.testing.assert_allclose(posing.shape_vertices, horse_rig.skin(posing.control_vertices),
+                               atol=1e-9)
+    faces = np.asarray(horse_rig.shape_mesh.faces)
+    assert posing.folds == mvcjax.flipped_triangles(horse_rig.shape_mesh.vertices,
+                                                    posing.shape_vertices, faces)
+    folds = posing.folds
+    assert posing.hint == (f"{folds} triangle{'s' * (folds != 1)} folded" if folds else "")
+    # Its suggestion is for the other solvers.
+    assert mvcjax._interact._fold_words(3, mvcjax.FoldFree()) == "3 triangles folded"
+
+
+def test_the_hint_is_drawn_from_cached_glyphs_as_the_whole_text_would_be():
+    from matplotlib.font_manager import FontProperties
+    from matplotlib.textpath import TextPath
+
+    from mvcjax._interact import _text_path
+
+    for text in ("1 triangle folded", "1203 triangles folded: try solver=mvcjax.FoldFree()"):
+        whole = TextPath((0, 0), text, prop=FontProperties(size=8.0))
+        pieced = _text_path(text, 8.0)
+        np.testing.assert_array_equal(pieced.codes, whole.codes)
+        np.testing.assert_allclose(pieced.vertices, whole.vertices, atol=1e-9)
+
+
+def test_the_default_solver_is_that_of_rig_deform(horse_rig):
+    from mvcjax._solvers import DEFAULT_SOLVER
+
+    posing = mvcjax.interact(horse_rig)
+    assert posing.solver is DEFAULT_SOLVER
+    targets = np.asarray(horse_rig.handle_positions) + np.array([0.0, 12.0])
+    posing.set_targets(targets)
+    np.testing.assert_allclose(posing.shape_vertices, horse_rig.deform(targets), atol=1e-9)
+
+
+def test_folds_are_drawn_over_a_textured_picture(horse_rig):
+    posing = started(mvcjax.interact(horse_rig, size=(48, 48)))
+    targets = np.asarray(horse_rig.handle_positions).copy()
+    targets[BACK] += FOLDING
+    posing.set_targets(targets)
+    folds = mvcjax.flipped_triangles(horse_rig.shape_mesh.vertices, posing.shape_vertices,
+                                     horse_rig.shape_mesh.faces)
+    assert folds > 0 and posing.folds == folds
+    assert len(posing._fold_patch.get_path().vertices) == 4 * folds
+    artists = posing._artists()
+    assert artists.index(posing._image) < artists.index(posing._fold_patch)  # on top
+    blitted = canvas_pixels(posing)
+    posing.figure.canvas.draw()
+    assert np.abs(canvas_pixels(posing) - blitted).max() <= 2

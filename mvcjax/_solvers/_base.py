@@ -12,6 +12,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .._energy import Energy
 from .._factor import AbstractFactor
+from .._skinning import Skinning
 
 
 class SolveInfo(eqx.Module):
@@ -22,11 +23,22 @@ class SolveInfo(eqx.Module):
             did not is reported as not converged, not hidden).
         iterations: the number of steps taken.
         energy: the energy (6) at the returned control vertices.
+        inverted: how many control triangles the pose turned inside out (0 for a pose
+            without folds; `FoldFree` keeps it at 0). The shape mesh follows the
+            control mesh, so a fold here is a fold in the picture.
+        handle_miss: the largest distance from a pinned point to its target, in the
+            user's units: how far the pose is from what the handles ask (a `FoldFree`
+            pose that would have to fold to reach them stops short, and this says by
+            how much).
+
+    A solver itself fills the first three; `Rig.solve` and `Rig.deform` add the last two.
     """
 
     converged: Bool[Array, ""]
     iterations: Int[Array, ""]
     energy: Float[Array, ""]
+    inverted: Int[Array, ""] | None = None
+    handle_miss: Float[Array, ""] | None = None
 
     def rescaled(self, energy_factor, vertices=None) -> SolveInfo:
         """The info with the energy times `energy_factor` (from the rig's frame to the
@@ -36,7 +48,25 @@ class SolveInfo(eqx.Module):
         converged = self.converged & jnp.isfinite(energy)
         if vertices is not None:
             converged = converged & jnp.all(jnp.isfinite(vertices))
-        return SolveInfo(converged=converged, iterations=self.iterations, energy=energy)
+        return SolveInfo(converged=converged, iterations=self.iterations, energy=energy,
+                         inverted=self.inverted, handle_miss=self.handle_miss)
+
+
+class SkinnedMesh(eqx.Module):
+    """The shape mesh as the control vertices carry it (`V_S = W V_C`, the rig's
+    skinning): what a solver that watches the drawn shape needs.
+
+    Attributes:
+        faces: `(f, 3)` the shape mesh's counter-clockwise triangles.
+        skinning: the rig's skinning (in the rig's frame, linear).
+    """
+
+    faces: Int[Array, "f 3"]
+    skinning: Skinning
+
+    def carry(self, y: Float[Array, "2 c"]) -> Float[Array, "2 n"]:
+        """`W` applied to control coordinates, coordinate-major."""
+        return self.skinning(y.T).T
 
 
 class AbstractSolver(eqx.Module):
@@ -63,6 +93,20 @@ class AbstractSolver(eqx.Module):
             targets: `(h, 2)` handle targets.
             init: `(n, 2)` starting control vertices.
         """
+
+    def solve_skinned(
+        self,
+        energy: Energy,
+        factor: AbstractFactor,
+        targets: Float[Array, "h 2"],
+        init: Float[Array, "n 2"],
+        shape: SkinnedMesh,
+    ) -> tuple[Float[Array, "n 2"], SolveInfo]:
+        """`solve`, told how the shape mesh follows the control vertices: what the rig
+        calls. A solver that keeps an eye on the shape mesh (`FoldFree`) overrides it;
+        the others solve the control mesh alone."""
+        del shape
+        return self.solve(energy, factor, targets, init)
 
     def fixed_steps(self, steps: int) -> AbstractSolver:
         """The same solver running exactly `steps` steps, its stopping test off: to time
