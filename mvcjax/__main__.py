@@ -53,6 +53,9 @@ def _demo(args) -> int:
     draw_time = time.perf_counter() - t0
     export.write_animation(args.animation, pictures, fps=24)
 
+    _say("  raising the character's arm overhead, plainly and with FoldFree ...")
+    arm = _arm_overhead(args.arm_degrees)
+
     _say("  drawing the figure ...")
     import matplotlib
 
@@ -62,7 +65,8 @@ def _demo(args) -> int:
     from mvcjax import plot
 
     posed = pictures[args.frames // 2]
-    fig, (a, b) = plt.subplots(1, 2, figsize=(13, 5.5))
+    fig, ((a, b), (c, d)) = plt.subplots(2, 2, figsize=(13, 11),
+                                         gridspec_kw={"height_ratios": [1.0, 1.1]})
     plot.plot_rig(rig, a)
     a.set_title("rest: shape mesh (grey) under control mesh (blue)")
     xmin, ymin, xmax, ymax = window
@@ -75,6 +79,20 @@ def _demo(args) -> int:
     b.set_xticks([])
     b.set_yticks([])
     b.set_title("deformed (checkerboard texture) over the rest outline (dashed); x: targets")
+    arm_rig, arm_targets = arm["rig"], arm["targets"]
+    for ax, (name, (vertices, _, folded)) in zip((c, d), arm["poses"].items()):
+        plot.plot_outline(arm_rig, ax, color="0.6", linewidth=0.8, linestyle="--")
+        plot.plot_mesh(vertices, arm_rig.shape_mesh.faces, ax, color="tab:green", linewidth=0.25)
+        plot.plot_folds(arm_rig, vertices, ax)
+        ax.plot(*np.asarray(arm_targets).T, "x", color="k", markersize=7)
+        ax.set_title(f"right arm turned {args.arm_degrees:g} degrees: {name}, "
+                     f"{folded} triangles folded (red)", fontsize=10)
+    points = np.concatenate([np.asarray(v) for v, _, _ in arm["poses"].values()])
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    pad = 0.04 * (hi - lo).max()
+    for ax in (c, d):
+        ax.set_xlim(lo[0] - pad, hi[0] + pad)
+        ax.set_ylim(lo[1] - pad, hi[1] + pad)
     fig.tight_layout()
     fig.savefig(args.out, dpi=args.dpi)
     plt.close(fig)
@@ -89,12 +107,39 @@ def _demo(args) -> int:
     _say(f"dtype      : {rig.energy.rest.dtype}, device {jax.devices()[0].platform}")
     _say(f"preprocess : {build * 1e3:.0f} ms (meshing, skinning weights, G)")
     _say(f"compile    : {compile_time * 1e3:.0f} ms (solve + skin, once)")
-    _say(f"per frame  : {frame_time * 1e3:.3f} ms (FixedG, 15 iterations, + blended MVC "
-         f"skinning; median of {len(times)})")
+    _say(f"per frame  : {frame_time * 1e3:.3f} ms (rig.deform's default: FixedG, 60 "
+         f"iterations from the turned start, + blended MVC skinning; median of {len(times)})")
+    for name, (_, info, folded) in arm["poses"].items():
+        _say(f"arm        : {name:<9}: {folded} shape triangles folded, "
+             f"{int(info.inverted)} control triangles inverted, handles missed by "
+             f"{float(info.handle_miss):.2f}")
     _say(f"animation  : {args.animation} ({args.frames} frames, {args.size}x{args.size}; "
          f"deformed and drawn in {draw_time:.1f} s, compiling included)")
     _say(f"figure     : {args.out}")
     return 0
+
+
+def _arm_overhead(degrees: float) -> dict:
+    """The built-in character with a bone per arm, its right arm turned `degrees` about
+    the shoulder: the pose of the default solver and of `FoldFree`, each with its info
+    and the number of folded shape triangles."""
+    import numpy as np
+
+    import mvcjax
+    from mvcjax import datasets
+
+    rig = mvcjax.Rig.build(datasets.character(), datasets.character_bones("arms"))
+    targets = np.array(rig.handle_positions)
+    # Rows 4 and 5: the right arm's bone, from the shoulder to the wrist.
+    targets[5] = datasets._rotate(targets[5], targets[4], float(degrees))
+    poses = {}
+    for name, solver in (("default", mvcjax._solvers.DEFAULT_SOLVER),
+                         ("FoldFree", mvcjax.FoldFree())):
+        vertices, info = rig.deform(targets, solver, return_info=True)
+        folded = mvcjax.flipped_triangles(rig.shape_mesh.vertices, vertices,
+                                          rig.shape_mesh.faces)
+        poses[name] = (vertices, info, folded)
+    return {"rig": rig, "targets": targets, "poses": poses}
 
 
 def main(argv=None) -> int:
@@ -109,6 +154,8 @@ def main(argv=None) -> int:
     demo.add_argument("--shape-spacing", type=float, default=None,
                       help="edge length of the shape mesh (default: the rig's)")
     demo.add_argument("--dpi", type=int, default=110)
+    demo.add_argument("--arm-degrees", type=float, default=110.0,
+                      help="how far the character's arm turns in the fold panels")
     args = parser.parse_args(argv)
     if args.command == "demo":
         return _demo(args)

@@ -81,6 +81,26 @@ def plot_deformation(rig, shape_vertices, targets=None, ax=None, *, rest=True):
     return ax
 
 
+def plot_folds(rig, shape_vertices, ax=None, *, color="tab:red", alpha=0.8):
+    """Fill the shape-mesh triangles that `shape_vertices` turned inside out (as
+    `mvcjax.flipped_triangles` counts them); returns how many there are."""
+    from matplotlib.collections import PolyCollection
+
+    ax = _axes(ax)
+    rest, faces = np.asarray(rig.shape_mesh.vertices, np.float64), np.asarray(rig.shape_mesh.faces)
+    v = np.asarray(shape_vertices, np.float64)
+
+    def signed(points):
+        a, b, c = (points[faces[:, k]] for k in range(3))
+        return (b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0]
+
+    folded = np.flatnonzero(np.sign(signed(v)) != np.sign(signed(rest)))
+    if len(folded):
+        ax.add_collection(PolyCollection(v[faces[folded]], facecolors=color, edgecolors=color,
+                                         linewidths=0.6, alpha=alpha, zorder=5))
+    return len(folded)
+
+
 def plot_comparison(rig, panels, targets=None, *, size=3.6):
     """A row of panels like the paper's figures 3 to 5: the input with both meshes, then
     one deformed shape mesh per entry of `panels` (`{title: (n, 2) vertices}`).
