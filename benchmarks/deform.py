@@ -2,7 +2,8 @@
 
 For each size: mesh sizes, preprocessing time (Rig.build, including the compilation of
 G), compile time of a frame, and the median per-frame time of solve and skin apart and
-together, for FixedG (15 iterations, the paper's) and GaussNewton (to tolerance). The
+together, for FixedG (15 iterations, the paper's), the default solver of `rig.deform`
+and GaussNewton (to tolerance), each from the default start. The
 frame is jitted with the rig closed over (the interactive use: one rig, many targets)
 and, for the combined frame, also with the rig as an argument. Compilation happens
 once, outside the timed region; every timed call blocks until ready; each time is the
@@ -59,7 +60,9 @@ def run(sizes, repeats: int, dtype_name: str) -> list[dict]:
             "control_polygon": int(rig.control_mesh.outer.shape[0]),
             "preprocess_s": preprocess,
         }
-        solvers = [("fixed_g15", mvcjax.FixedG()), ("gauss_newton", mvcjax.GaussNewton())]
+        solvers = [("fixed_g15", mvcjax.FixedG()),
+                   ("default", mvcjax._solvers.DEFAULT_SOLVER),
+                   ("gauss_newton", mvcjax.GaussNewton())]
         for name, solver in solvers:
             solve = jax.jit(lambda t, s=solver, r=rig: r.solve(t, s))
             skin = jax.jit(lambda v, r=rig: r.skin(v))
@@ -89,6 +92,7 @@ def _format(row) -> str:
         f"solve={row['fixed_g15_solve_ms']:.3f} skin={row['fixed_g15_skin_ms']:.3f} "
         f"frame={row['fixed_g15_frame_ms']:.3f} "
         f"(rig as arg {row['fixed_g15_frame_rig_argument_ms']:.3f}) ms"
+        f" | default frame={row['default_frame_ms']:.3f} ms"
         f" | GN solve={row['gauss_newton_solve_ms']:.2f} "
         f"frame={row['gauss_newton_frame_ms']:.2f} ms "
         f"({row['gauss_newton_steps']} steps)"

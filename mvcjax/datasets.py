@@ -287,3 +287,258 @@ def model(name: str) -> Model:
     handles.setflags(write=False)
     drag.setflags(write=False)
     return Model(name, make_shape(), handles, drag, dict(_OPTIONS[name]))
+
+
+# ---- the fold suite's shapes ---------------------------------------------------------
+#
+# Shapes for the fold suite (`benchmarks/folds.py`): limbs turned far, a strip curled,
+# letters bent. Each comes with handles that mix points and `Bone`s; the poses are
+# functions of the rest targets in `benchmarks/folds.py`.
+
+
+def character_bones(limbs: str = "arms") -> list:
+    """Handles on `character()` with a `Bone` per arm or per leg, a list for `Rig.build`.
+
+    `limbs="arms"`: the head and the pelvis as points, a bone along each arm from its
+    shoulder to its wrist (left, then right), the two ankles as points: 8 target rows
+    (head, pelvis, left shoulder, left wrist, right shoulder, right wrist, left ankle,
+    right ankle). `limbs="legs"`: the head, the pelvis and the two wrists as points, a
+    bone along each leg from its hip to its ankle (left, then right): 8 rows (head,
+    pelvis, left wrist, right wrist, left hip, left ankle, right hip, right ankle). The
+    points and bone ends are those of `character_handles()` and the character's
+    shoulders and hips, which lie inside the torso.
+    """
+    from ._handles import Bone
+
+    h = character_handles()
+    head, pelvis = tuple(h[0]), tuple(h[1])
+    if limbs == "arms":
+        return [head, pelvis, Bone(_SHOULDERS[0], h[2]), Bone(_SHOULDERS[1], h[3]),
+                tuple(h[4]), tuple(h[5])]
+    if limbs == "legs":
+        return [head, pelvis, tuple(h[2]), tuple(h[3]), Bone(_HIPS[0], h[4]),
+                Bone(_HIPS[1], h[5])]
+    raise ValueError(f"limbs must be 'arms' or 'legs', got {limbs!r}.")
+
+
+# The sprite: a front-facing figure drawn with Pillow, in its pixels with y up (the
+# coordinates `Shape.from_image` gives). Arms hang 30 degrees out from the body, legs
+# apart, feet pointing outwards. Left and right are the viewer's.
+_SPRITE_SIZE = (240, 260)  # (width, height) in pixels
+_SPRITE_TORSO = ((120.0, 130.0), 30.0, 45.0)  # centre, half width, half height
+_SPRITE_HEAD = ((120.0, 206.0), 24.0)  # centre, radius
+_SPRITE_NECK = ((111.0, 165.0), (129.0, 190.0))  # corners of a rectangle
+_SPRITE_SHOULDERS = ((97.0, 158.0), (143.0, 158.0))
+_SPRITE_HIPS = ((108.0, 95.0), (132.0, 95.0))
+_SPRITE_ARM = (70.0, 30.0, 8.0)  # length, degrees out from hanging straight down, radius
+_SPRITE_ANKLES = ((100.0, 24.0), (140.0, 24.0))
+_SPRITE_LEG = 9.0  # radius
+_SPRITE_FEET = (((90.0, 15.0), 16.0, 7.0), ((150.0, 15.0), 16.0, 7.0))  # centre, rx, ry
+_SPRITE_IN = 10.0  # the wrist handles sit this far in from the hands' tips
+
+
+def _sprite_hands() -> np.ndarray:
+    length, out, _ = _SPRITE_ARM
+    t = np.radians(out)
+    return np.array([[s[0] + side * length * np.sin(t), s[1] - length * np.cos(t)]
+                     for s, side in zip(_SPRITE_SHOULDERS, (-1.0, 1.0))])
+
+
+def sprite_picture() -> np.ndarray:
+    """The sprite drawn with Pillow: a `(260, 240, 4)` RGBA picture (uint8, transparent
+    background), a figure of five coloured parts (head, torso, arms, legs, feet) whose
+    union is one silhouette.
+
+    The head is a disc (radius 24) on a neck, the torso an ellipse (60 x 90 pixels), the
+    arms capsules 16 wide and 70 long hanging 30 degrees out from the body, the legs
+    capsules 18 wide, the feet ellipses pointing outwards. `sprite()` is its silhouette
+    and `sprite_handles()` rigs it; `Renderer.build(rig, sprite_picture())` draws it
+    posed.
+    """
+    from PIL import Image, ImageDraw
+
+    width, height = _SPRITE_SIZE
+    image = Image.new("RGBA", (width, height), (0, 0, 0, 0))
+    draw = ImageDraw.Draw(image)
+
+    def px(p):  # shape coordinates (y up) -> Pillow's (x, y down), pixel centres
+        return (p[0], height - 1 - p[1])
+
+    def ellipse(centre, rx, ry, colour):
+        (x, y) = px(centre)
+        draw.ellipse([x - rx, y - ry, x + rx, y + ry], fill=colour)
+
+    def capsule(a, b, radius, colour):
+        draw.line([px(a), px(b)], fill=colour, width=round(2 * radius))
+        for p in (a, b):
+            ellipse(p, radius, radius, colour)
+
+    skin, shirt, trousers, shoes = (236, 188, 150, 255), (52, 101, 164, 255), \
+        (60, 60, 70, 255), (120, 70, 30, 255)
+    for s, h in zip(_SPRITE_SHOULDERS, _sprite_hands()):
+        capsule(s, h, _SPRITE_ARM[2], shirt)
+        ellipse(h, _SPRITE_ARM[2] + 1.0, _SPRITE_ARM[2] + 1.0, skin)
+    for hip, ankle in zip(_SPRITE_HIPS, _SPRITE_ANKLES):
+        capsule(hip, ankle, _SPRITE_LEG, trousers)
+    for centre, rx, ry in _SPRITE_FEET:
+        ellipse(centre, rx, ry, shoes)
+    (x0, y0), (x1, y1) = _SPRITE_NECK
+    draw.rectangle([*px((x0, y1)), *px((x1, y0))], fill=skin)
+    centre, rx, ry = _SPRITE_TORSO
+    ellipse(centre, rx, ry, shirt)
+    ellipse(_SPRITE_HEAD[0], _SPRITE_HEAD[1], _SPRITE_HEAD[1], skin)
+    return np.asarray(image)
+
+
+def sprite() -> Shape:
+    """The silhouette of `sprite_picture()` (from its alpha, `Shape.from_image`), about
+    125 x 220 pixels in a 240 x 260 picture, y up: one polygon, no holes."""
+    return Shape.from_image(sprite_picture())
+
+
+def sprite_handles() -> list:
+    """Handles on `sprite()`, a list for `Rig.build`: a point on the chest, a `Bone`
+    along each arm (shoulder to wrist: left, then right) and each leg (hip to ankle),
+    and a point on each foot's toe. Target rows: chest, left shoulder, left wrist,
+    right shoulder, right wrist, left hip, left ankle, right hip, right ankle, left
+    toe, right toe (11)."""
+    from ._handles import Bone
+
+    def inward(end, root, by):
+        d = np.asarray(root) - end
+        return end + by * d / np.linalg.norm(d)
+
+    wrists = [inward(h, s, _SPRITE_IN - _SPRITE_ARM[2]) for h, s in
+              zip(_sprite_hands(), _SPRITE_SHOULDERS)]
+    toes = [(c[0] + side * 0.6 * rx, c[1]) for (c, rx, _), side in
+            zip(_SPRITE_FEET, (-1.0, 1.0))]
+    chest = (_SPRITE_TORSO[0][0], _SPRITE_TORSO[0][1] + 12.0)
+    return [chest,
+            *[Bone(s, w) for s, w in zip(_SPRITE_SHOULDERS, wrists)],
+            *[Bone(h, a) for h, a in zip(_SPRITE_HIPS, _SPRITE_ANKLES)],
+            *toes]
+
+
+# The snake: a long strip along the x axis.
+_SNAKE = (400.0, 20.0)  # length and width, round ends included
+
+
+def snake(length: float = _SNAKE[0], width: float = _SNAKE[1], taper: float = 0.0) -> Shape:
+    """A long strip with round ends, `length` x `width` (default 400 x 20 units), along
+    the x axis from x = 0 to `length`, centred on y = 0: a capsule whose axis runs from
+    `width / 2` to `length - width / 2`.
+
+    With `taper > 0` the half width eases from `width / 2` in the middle to `(1 - taper)`
+    times that at the ends (as `stick()`'s, whose 10% is barely visible): the sides are
+    then curves, not the two long straight edges that the default control polygon keeps
+    whole (one control edge a side, which cannot bend), however small `control_spacing`.
+    """
+    if not (np.isfinite(length) and np.isfinite(width) and 0 < width < length):
+        raise ValueError(f"snake needs 0 < width < length, got length={length}, width={width}.")
+    if not (np.isfinite(taper) and 0 <= taper < 1):
+        raise ValueError(f"snake needs 0 <= taper < 1, got taper={taper}.")
+    r = width / 2.0
+    if taper == 0:
+        return _from_union([_capsule((r, 0.0), (length - r, 0.0), r)])
+    half = length / 2.0 - r * (1.0 - taper)  # the caps' centres, their radius the end's width
+    x = np.linspace(-half, half, 41)
+    w = r * (1.0 - taper * (x / half) ** 2)
+    a = np.linspace(np.pi / 2, -np.pi / 2, 11)[1:-1]
+    right = np.stack([half + w[-1] * np.cos(a), w[-1] * np.sin(a)], axis=1)
+    left = np.stack([-half - w[0] * np.cos(a), -w[0] * np.sin(a)], axis=1)
+    top = np.stack([x, w], axis=1)
+    bottom = np.stack([x, -w], axis=1)[::-1]
+    outline = np.concatenate([top, right, bottom, left]) + [length / 2.0, 0.0]
+    return Shape.from_polygon(outline)
+
+
+def snake_handles(length: float = _SNAKE[0], width: float = _SNAKE[1],
+                  points: int = 6) -> list:
+    """Handles on `snake(length, width)`, a list for `Rig.build`: two points on the axis
+    at the tail (they clamp its direction), `points` points evenly along the axis
+    between them and the head, and a `Bone` along the head end (its last tenth, from
+    the back of the head to the snout). Target rows: the tail points, the points along
+    the body, then the bone's start and end."""
+    from ._handles import Bone
+
+    r = width / 2.0
+    tail = [r + 0.5 * r, r + 0.5 * r + 0.075 * length]
+    head = (length - r - 0.1 * length, length - r - 0.2 * r)
+    body = np.linspace(tail[1], head[0], points + 2)[1:-1]
+    return [*[(float(x), 0.0) for x in (*tail, *body)],
+            Bone((head[0], 0.0), (head[1], 0.0))]
+
+
+def snake_curl(rest: np.ndarray, degrees: float) -> np.ndarray:
+    """Targets `(t, 2)` that curl a strip's axis (the x axis, every rest target on it,
+    tail at the smallest x) into a circular arc turning `degrees` counter-clockwise
+    from its first target to its last: each target goes to the point of the arc at the
+    same distance along the axis, so the arc keeps the axis's length and the targets
+    agree with each other (a bone's ends stay its length apart, to the arc's sag)."""
+    rest = np.asarray(rest, np.float64)
+    start, end = rest[:, 0].min(), rest[:, 0].max()
+    if degrees == 0:
+        return rest.copy()
+    radius = (end - start) / np.radians(degrees)
+    t = (rest[:, 0] - start) / radius
+    arc = np.stack([start + radius * np.sin(t), rest[:, 1] + radius * (1.0 - np.cos(t))], axis=1)
+    return arc
+
+
+# Glyphs: letters of a font rendered to masks.
+
+
+def glyph(letter: str, font=None, size: int = 200) -> Shape:
+    """The letter `letter` rendered by Pillow from a TrueType font at `size` pixels (the
+    font's em size), traced to a `Shape` (`Shape.from_image`, pixel units, y up).
+
+    `font` is a path to a font file, or `None` for DejaVu Sans, which matplotlib ships
+    (`matplotlib.font_manager.findfont("DejaVu Sans")`). A letter of several pieces
+    keeps its largest; holes (A, R, O) are kept. The glyph sits in a picture with 4
+    pixels of margin around its ink.
+    """
+    from PIL import Image, ImageDraw, ImageFont
+
+    if not isinstance(letter, str) or len(letter) != 1 or letter.isspace():
+        raise ValueError(f"letter must be one visible character, got {letter!r}.")
+    if font is None:
+        from matplotlib import font_manager
+
+        font = font_manager.findfont("DejaVu Sans")
+    face = ImageFont.truetype(str(font), size)
+    left, top, right, bottom = face.getbbox(letter)
+    pad = 4
+    image = Image.new("L", (right - left + 2 * pad, bottom - top + 2 * pad), 0)
+    ImageDraw.Draw(image).text((pad - left, pad - top), letter, fill=255, font=face)
+    mask = np.asarray(image) > 127
+    if not mask.any():
+        raise ValueError(f"The font draws nothing for {letter!r}.")
+    from skimage import measure
+
+    count = measure.label(mask, connectivity=1, return_num=True)[1]
+    return Shape.from_image(mask, component=0 if count > 1 else None, min_hole_area=4.0)
+
+
+def glyph_handles(shape: Shape, heights=(0.08, 0.5, 0.92), min_width: float = 4.0) -> tuple:
+    """Pins on a glyph (or any shape) at fractions `heights` of its height.
+
+    For each height, the horizontal line there is cut by the shape into pieces (every
+    stroke it crosses; pieces narrower than `min_width` are left out): a pin goes in the
+    middle of each piece, or, where the line crosses a single piece, two pins go at a
+    quarter and three quarters of it, so that every height holds its direction (an L's
+    stem, an A's apex). Returns a tuple of `(k, 2)` arrays, one per height (bottom,
+    middle and top by default); `np.concatenate` them for `Rig.build`.
+    """
+    x0, y0, x1, y1 = shape.bounds
+    pins = []
+    for h in heights:
+        y = y0 + h * (y1 - y0)
+        line = shapely.LineString([(x0 - 1.0, y), (x1 + 1.0, y)])
+        cut = line.intersection(shape.polygon)
+        pieces = sorted((g for g in getattr(cut, "geoms", [cut])
+                         if g.geom_type == "LineString" and g.length >= min_width),
+                        key=lambda g: g.bounds[0])
+        at = (0.25, 0.75) if len(pieces) == 1 else (0.5,)
+        pins.append(np.array([g.interpolate(f, normalized=True).coords[0] for g in pieces
+                              for f in at], np.float64).reshape(-1, 2))
+    return tuple(pins)

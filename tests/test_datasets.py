@@ -124,3 +124,117 @@ def test_paper_iterations_stay_finite(built):
     m, rig = built
     out = paper_deform(rig, rig.handle_positions + m.drag)
     assert np.isfinite(np.asarray(out)).all()
+
+
+# ---- the fold suite's shapes --------------------------------------------------------
+
+
+def _bone_rows(handles):
+    return sum(2 if isinstance(h, mvcjax.Bone) else 1 for h in handles)
+
+
+def _inside(shape, handles):
+    """Every point handle and every bone (whole segment) on or inside the shape."""
+    polygon = shape.polygon.buffer(1e-6 * shape.diagonal)
+    for h in handles:
+        geometry = (shapely.LineString([h.start, h.end]) if isinstance(h, mvcjax.Bone)
+                    else shapely.Point(h))
+        assert polygon.contains(geometry), h
+
+
+@pytest.mark.parametrize("limbs", ["arms", "legs"])
+def test_character_bones_rig_builds(limbs):
+    handles = datasets.character_bones(limbs)
+    assert sum(isinstance(h, mvcjax.Bone) for h in handles) == 2
+    _inside(datasets.character(), handles)
+    rig = mvcjax.Rig.build(datasets.character(), handles,
+                           **datasets.model("character").options)
+    assert rig.handle_positions.shape == (8, 2) == (_bone_rows(handles), 2)
+    assert rig.bones.shape == (2, 2, 2)
+
+
+def test_character_bones_refuses_other_limbs():
+    with pytest.raises(ValueError, match="'arms' or 'legs'"):
+        datasets.character_bones("tail")
+
+
+def test_sprite_picture_shape_and_handles():
+    picture = datasets.sprite_picture()
+    assert picture.shape == (260, 240, 4) and picture.dtype == np.uint8
+    assert picture[0, 0, 3] == 0 and picture[..., 3].max() == 255
+    shape = datasets.sprite()
+    assert shape.polygon.is_valid and shape.holes == ()
+    # The silhouette is the picture's opaque pixels (one unit a pixel).
+    assert abs(shape.area - np.count_nonzero(picture[..., 3] > 127)) < 0.03 * shape.area
+    handles = datasets.sprite_handles()
+    assert sum(isinstance(h, mvcjax.Bone) for h in handles) == 4 and len(handles) == 7
+    _inside(shape, handles)
+    rig = mvcjax.Rig.build(shape, handles, shape_spacing=8.0)
+    assert rig.handle_positions.shape == (11, 2)
+    assert rig.bones.shape == (4, 2, 2)
+
+
+def test_snake_shape_handles_and_curl():
+    shape = datasets.snake()
+    np.testing.assert_allclose(shape.bounds, (0.0, -10.0, 400.0, 10.0), atol=0.3)
+    assert shape.polygon.is_valid
+    handles = datasets.snake_handles()
+    assert isinstance(handles[-1], mvcjax.Bone)
+    _inside(shape, handles)
+    rig = mvcjax.Rig.build(shape, handles, shape_spacing=4.0)
+    rest = np.asarray(rig.handle_positions, np.float64)
+    np.testing.assert_array_equal(datasets.snake_curl(rest, 0.0), rest)
+    for degrees in (90.0, 270.0):
+        curled = datasets.snake_curl(rest, degrees)
+        # On a circle through the tail, tangent to the axis there, whose arc keeps the
+        # axis's length: the centre is straight above the tail.
+        radius = (rest[:, 0].max() - rest[:, 0].min()) / np.radians(degrees)
+        centre = np.array([rest[:, 0].min(), radius])
+        np.testing.assert_allclose(np.linalg.norm(curled - centre, axis=1), radius, rtol=1e-9)
+        along = np.arctan2(curled[:, 0] - centre[0], centre[1] - curled[:, 1]) % (2 * np.pi)
+        np.testing.assert_allclose(along * radius, rest[:, 0] - rest[:, 0].min(), atol=1e-9)
+    with pytest.raises(ValueError, match="width < length"):
+        datasets.snake(10.0, 20.0)
+
+
+def test_tapered_snake():
+    shape = datasets.snake(taper=0.1)
+    assert shape.polygon.is_valid
+    np.testing.assert_allclose(shape.bounds, (0.0, -10.0, 400.0, 10.0), atol=1e-9)
+    # 10% narrower at the ends than in the middle, and no long straight side.
+    assert not shape.polygon.contains(shapely.Point(385.0, 9.5))
+    assert shape.polygon.contains(shapely.Point(200.0, 9.5))
+    edges = np.diff(np.vstack([shape.outer, shape.outer[:1]]), axis=0)
+    assert np.linalg.norm(edges, axis=1).max() < 20.0
+    _inside(shape, datasets.snake_handles())
+    with pytest.raises(ValueError, match="taper"):
+        datasets.snake(taper=1.0)
+
+
+@pytest.mark.parametrize("letter", list("HKLTEFNMAR"))
+def test_glyph_shape_and_pins(letter):
+    shape = datasets.glyph(letter)
+    assert shape.polygon.is_valid
+    assert len(shape.holes) == (1 if letter in "AR" else 0)
+    _, y0, _, y1 = shape.bounds
+    assert 130.0 < y1 - y0 < 160.0  # 200-pixel em: capitals about 146 pixels tall
+    levels = datasets.glyph_handles(shape)
+    # Every height holds its direction: two pins at least (two on a single stroke).
+    assert len(levels) == 3 and all(len(p) >= 2 for p in levels)
+    heights = [p[:, 1].mean() for p in levels]
+    assert heights[0] < heights[1] < heights[2]
+    pins = np.concatenate(levels)
+    assert shapely.contains(shape.polygon, shapely.points(pins)).all()
+
+
+def test_glyph_rig_builds_and_font_path():
+    from matplotlib import font_manager
+
+    shape = datasets.glyph("A", font=font_manager.findfont("DejaVu Sans"), size=100)
+    assert 60.0 < shape.bounds[3] - shape.bounds[1] < 80.0
+    rig = mvcjax.Rig.build(shape, np.concatenate(datasets.glyph_handles(shape)),
+                           shape_spacing=4.0)
+    assert rig.shape_mesh.vertices.shape[0] > 100
+    for bad in ("", "AB", " "):
+        with pytest.raises(ValueError, match="one visible character"):
+            datasets.glyph(bad)

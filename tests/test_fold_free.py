@@ -40,7 +40,7 @@ def shape_flips(rig, vertices):
     return mvcjax.flipped_triangles(rig.shape_mesh.vertices, vertices, rig.shape_mesh.faces)
 
 
-@pytest.mark.parametrize("degrees", [90, 150])
+@pytest.mark.parametrize("degrees", [90, pytest.param(150, marks=pytest.mark.slow)])
 def test_a_raised_arm_folds_nothing(arm_rig, degrees):
     targets = raised(arm_rig, degrees)
     folded, folded_info = arm_rig.deform(targets, mvcjax.GaussNewton(), return_info=True)
@@ -95,6 +95,7 @@ def test_float32():
     assert int(info.inverted) == 0 and shape_flips(rig, vertices) == 0
 
 
+@pytest.mark.slow
 def test_jit_and_vmap(arm_rig):
     solver = mvcjax.FoldFree()
     batch = jnp.stack([raised(arm_rig, 60), raised(arm_rig, 100)])
@@ -105,6 +106,7 @@ def test_jit_and_vmap(arm_rig):
         assert shape_flips(arm_rig, together[k]) == 0
 
 
+@pytest.mark.slow
 def test_gradients_match_finite_differences(arm_rig):
     # At a pose where the barriers hold the armpit open, so that they shape the result.
     targets = raised(arm_rig, 90)
@@ -125,7 +127,7 @@ def test_gradients_match_finite_differences(arm_rig):
     w = jnp.asarray(1.0)
     g = float(jax.grad(of_length_weight)(w))
     fd = float((of_length_weight(w + 1e-3) - of_length_weight(w - 1e-3)) / 2e-3)
-    assert g == pytest.approx(fd, rel=1e-4)
+    assert g == pytest.approx(fd, rel=5e-4)
 
 
 def test_options_are_checked():

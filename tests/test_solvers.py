@@ -15,7 +15,8 @@ from mvcjax import datasets
 from conftest import directional_derivatives, drag, scipy_minimum
 
 TIGHT = {
-    "fixed_g": mvcjax.FixedG(iterations=60000, rtol=1e-10, stop_early=True),
+    # The stopping test bounds the distance to the minimum: 1e-8 of the diagonal.
+    "fixed_g": mvcjax.FixedG(iterations=60000, rtol=1e-8, stop_early=True),
     "anderson": mvcjax.FixedG(iterations=20000, rtol=1e-11, stop_early=True, anderson=5),
     "gauss_newton": mvcjax.GaussNewton(max_steps=500),
     "gauss_newton_cholesky": mvcjax.GaussNewton(max_steps=500, linear_solver="cholesky"),
@@ -104,7 +105,8 @@ def test_several_minima_are_each_stationary(horse_rig, solve):
         assert gradient_norm(horse_rig, vertices, targets) < 1e-5, name
     assert energies["fixed_g"] == pytest.approx(energies["anderson"], rel=1e-9)
     plain = mvcjax.LevenbergMarquardt(max_steps=1000, cg_steps=8, cg_deflate=False)
-    vertices, info = jax.jit(lambda t: horse_rig.solve(t, plain, return_info=True))(targets)
+    vertices, info = jax.jit(lambda t: horse_rig.solve(t, plain, init="rigid",
+                                                       return_info=True))(targets)
     assert bool(info.converged)
     assert gradient_norm(horse_rig, vertices, targets) < 1e-5
     energies["levenberg_marquardt_plain"] = float(info.energy)

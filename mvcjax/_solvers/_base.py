@@ -66,7 +66,7 @@ class SkinnedMesh(eqx.Module):
 
     def carry(self, y: Float[Array, "2 c"]) -> Float[Array, "2 n"]:
         """`W` applied to control coordinates, coordinate-major."""
-        return self.skinning(y.T).T
+        return jnp.einsum("nk,dnk->dn", self.skinning.weights, y[:, self.skinning.indices])
 
 
 class AbstractSolver(eqx.Module):

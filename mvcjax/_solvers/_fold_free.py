@@ -25,6 +25,9 @@ from ._normal_cg import GaussNewtonMatrix, _dot, conjugate_gradient, hessian_sol
 # Armijo's sufficient decrease, and how many times a step may be halved.
 _ARMIJO = 1e-4
 _HALVINGS = 40
+# A search that finds no decrease where the model promised less than this many times
+# `rtol` of the objective has stopped at the minimum, to rounding.
+_STALL = 100.0
 # The share of the largest safe step a trial step may take: the barrier is infinite at
 # a flat triangle, so the trial must stop short of it.
 _SAFE_SHARE = 0.9
@@ -290,42 +293,55 @@ class FoldFree(AbstractSolver):
             # Conjugate gradients on a positive semidefinite matrix give a descent
             # direction; the gradient itself is the fallback if they broke down.
             x = jnp.where(_dot(x, gradient) > 0, x, gradient)
-            direction = -x
-            slope = 2 * _dot(gradient, direction)
-            # The meshes' points move linearly with the control coordinates: carried
-            # once per step, and each triangle's area along the step is a quadratic.
-            moves = [b.points(direction) for b in barriers]
-            lines = [b.line(p, q) for b, p, q in zip(barriers, points, moves)]
-            reach = jnp.min(jnp.stack([first_flat(*line) for line in lines]))
-            t0 = jnp.minimum(1.0, _SAFE_SHARE * reach).astype(dtype)
 
-            def trial_value(t):
-                r = problem.residuals(y + t * direction)
-                return jnp.sum(r * r) + sum(b.value_along(line, t)
-                                            for b, line in zip(barriers, lines))
+            def search(direction):
+                """Armijo backtracking along `direction` from short of the first flat
+                triangle: `(accepted, step, value there, the points' moves)`."""
+                slope = 2 * _dot(gradient, direction)
+                # The meshes' points move linearly with the control coordinates: carried
+                # once per step, and each triangle's area along the step is a quadratic.
+                moves = tuple(b.points(direction) for b in barriers)
+                lines = [b.line(p, q) for b, p, q in zip(barriers, points, moves)]
+                reach = jnp.min(jnp.stack([first_flat(*line) for line in lines]))
+                t0 = jnp.minimum(1.0, _SAFE_SHARE * reach).astype(dtype)
 
-            def short(search):
-                t, trial, i = search
-                return (trial > value + _ARMIJO * t * slope) & (i < _HALVINGS)
+                def trial_value(t):
+                    r = problem.residuals(y + t * direction)
+                    return jnp.sum(r * r) + sum(b.value_along(line, t)
+                                                for b, line in zip(barriers, lines))
 
-            def halve(search):
-                t, _, i = search
-                return t / 2, trial_value(t / 2), i + 1
+                def short(state):
+                    t, trial, i = state
+                    return (trial > value + _ARMIJO * t * slope) & (i < _HALVINGS)
 
-            t, trial, _ = jax.lax.while_loop(short, halve, (t0, trial_value(t0), 0))
-            accept = trial <= value + _ARMIJO * t * slope
-            step_size = jnp.where(accept, t, 0)
+                def halve(state):
+                    t, _, i = state
+                    return t / 2, trial_value(t / 2), i + 1
+
+                t, trial, _ = jax.lax.while_loop(short, halve, (t0, trial_value(t0), 0))
+                accept = trial <= value + _ARMIJO * t * slope
+                return accept, jnp.where(accept, t, 0), trial, moves, direction
+
+            # Where the Gauss-Newton direction finds no decrease (its model can be poor
+            # next to a barrier), the fixed-G direction `-N^{-1} g` still descends.
+            found = search(-x)
+            accept, step_size, trial, moves, direction = jax.lax.cond(
+                found[0], lambda _: found, lambda _: search(-inverse.mv(gradient)), None)
             new_y = y + step_size * direction
             new_points = tuple(p + step_size * q for p, q in zip(points, moves))
             moved = jnp.max(jnp.abs(new_y - y) / (atol + rtol * jnp.abs(y)))
             new_value = jnp.where(accept, trial, value)
-            # No decrease found along a descent direction: the minimum, to rounding.
-            done = ((moved < 1) & (value - new_value <= rtol * value)) | ~accept
+            # No decrease along either descent direction: at the minimum to rounding if
+            # the Gauss-Newton model promised next to nothing there, else stuck (and
+            # then not converged).
+            promised = 2 * _dot(gradient, x)
+            converged = ((accept & (moved < 1) & (value - new_value <= rtol * value))
+                         | (~accept & (promised <= _STALL * rtol * value)))
             return (k + 1, new_y, new_points, new_value,
-                    (y, model.normal_point, gradient), done)
+                    (y, model.normal_point, gradient), (converged | ~accept, converged))
 
         def running(carry):
-            k, *_, done = carry
+            k, *_, (done, _) = carry
             return (k < self.max_steps) & ~done
 
         points = tuple(b.points(start) for b in barriers)
@@ -334,9 +350,10 @@ class FoldFree(AbstractSolver):
                                      for b, p in zip(barriers, points))
         # At the start there is no step yet: a zero step deflates nothing.
         previous = (start, normal.mv(start), jnp.zeros_like(start))
-        carry = (jnp.zeros((), jnp.int32), start, points, value, previous, jnp.array(False))
-        k, y, _, _, _, done = jax.lax.while_loop(running, step, carry)
-        return y, k, done
+        carry = (jnp.zeros((), jnp.int32), start, points, value, previous,
+                 (jnp.array(False), jnp.array(False)))
+        k, y, _, _, _, (_, converged) = jax.lax.while_loop(running, step, carry)
+        return y, k, converged
 
     def solve(self, energy, factor, targets, init):
         return self.solve_skinned(energy, factor, targets, init, None)
