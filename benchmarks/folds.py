@@ -560,7 +560,9 @@ def format_tables(data: dict) -> str:
         f"{', quick run' if meta.get('quick') else ''}"
         f"{f', in {runs} runs (--resume)' if runs > 1 else ''}"
         f"{', on different mvcjax sources' if len(meta.get('mvcjax_sources', [])) > 1 else ''}"
-        f"{'; INCOMPLETE: the run was cut short' if meta.get('complete') is False else ''}.")
+        f"{'; INCOMPLETE: the run was cut short' if meta.get('complete') is False else ''}."
+        + (f" The default, `rig.deform(targets)`, ran `{meta['default_solver']}` from "
+           f"init={meta['default_init']}." if "default_solver" in meta else ""))
     out.append("")
     out.append("**The criterion.** Unfolded: the unconstrained solvers that reached 0 flipped "
                "shape triangles. Lowest: the lowest energy of the unconstrained solvers "
