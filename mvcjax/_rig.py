@@ -459,7 +459,7 @@ class Rig(JittableModule):
 
         Args:
             targets: `(h, 2)` where each handle should go.
-            solver: a solver. The default, `FixedG(iterations=60)` from the turned
+            solver: a solver. The default, `FixedG(iterations=100)` from the turned
                 start, comes near the minimum on poses that turn limbs far; the
                 paper's method is `FixedG()` (15 iterations) with `init="rest"`.
                 `mvcjax.FoldFree()` never folds the control mesh, and

@@ -12,6 +12,6 @@ from ._optimistix import (
 )
 
 # What `Rig.solve` and `Rig.deform` run when no solver is given, from the turned start:
-# enough fixed-G steps to come within a percent of the minimum's energy on the fold
-# poses, where the paper's 15 (`FixedG()`) stop visibly short of it.
+# enough fixed-G steps to come near the minimum on limbs turned far, where the paper's
+# 15 (`FixedG()`) stop visibly short of it (the fold suite measures how near).
 DEFAULT_SOLVER = FixedG(iterations=100)
