@@ -73,8 +73,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-from _peer import arap as igl_arap, igl_or_none, igl_version
 
+from _peer import arap as igl_arap, igl_or_none, igl_version
 from _timing import compile_ms, interleaved_median_ms, median_ms, spacing_for, write_results
 
 UNCONSTRAINED = ("gauss_newton", "dogleg", "levenberg_marquardt", "anderson")

@@ -34,6 +34,7 @@ import sys
 import time
 from pathlib import Path
 
+from _peer import arap as peer_arap
 from _timing import compile_ms, interleaved_median_ms, spacing_for, write_results
 
 # The paper's Table 1 (AMD Athlon 3200+, 15 iterations; times in s and ms). Its
@@ -80,29 +81,6 @@ def _built(build):
     return rig, time.perf_counter() - t0
 
 
-def _arap(igl, full):
-    """libigl's ARAP on the full rig's shape mesh, 15 iterations: `(precompute s, solve)`,
-    `solve(targets, start)` returning the `(n, 2)` result."""
-    import numpy as np
-
-    vertices = np.ascontiguousarray(full.shape_mesh.vertices, np.float64)
-    faces = np.ascontiguousarray(full.shape_mesh.faces, np.int64)
-    handles = np.ascontiguousarray(full.shape_mesh.handles, np.int32)
-    data = igl.ARAPData()
-    data.max_iter = 15
-    data.energy = igl.ARAP_ENERGY_TYPE_ELEMENTS
-    t0 = time.perf_counter()
-    igl.arap_precomputation(vertices, faces, 2, handles, data)
-    precompute = time.perf_counter() - t0
-
-    def solve(targets, start):
-        # arap_solve returns a new array; it does not write into the start.
-        return igl.arap_solve(np.ascontiguousarray(targets, np.float64), data,
-                              np.ascontiguousarray(start, np.float64))
-
-    return precompute, solve
-
-
 def measure(name, shape, handles, drag, options, repeats, igl, figures):
     import jax
     import jax.numpy as jnp
@@ -143,7 +121,7 @@ def measure(name, shape, handles, drag, options, repeats, igl, figures):
         row[f"{key}_compile_ms"] = compile_ms(fn, frames[0])
         timed[key] = (fn, [(t,) for t in frames])
     if igl is not None:
-        row["arap_precompute_s"], arap = _arap(igl, full)
+        row["arap_precompute_s"], arap = peer_arap(igl, full.shape_mesh, 15)
         # The same start as the full solve's: the rest mesh moved rigidly to the targets.
         timed["arap"] = (arap, [(t, full.start(t)) for t in frames])
     for key, ms in interleaved_median_ms(timed, repeats).items():
