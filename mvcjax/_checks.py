@@ -35,3 +35,41 @@ def as_points(points, name: str, rows: str = "n", *, allow_empty: bool = False) 
         raise ValueError(f"{name} contains NaN or infinite coordinates; give finite (x, y) "
                          "points.")
     return array
+
+
+def as_array(value, name: str, what: str) -> np.ndarray:
+    """`np.asarray(value)`, or a ValueError naming `name` where it is ragged (rows of
+    different lengths), saying `what` it should be."""
+    try:
+        return np.asarray(value)
+    except ValueError:
+        raise ValueError(f"{name} must be {what}; got a ragged sequence (rows of different "
+                         "lengths).") from None
+
+
+def check_solver(solver, name: str = "solver"):
+    """`solver` itself if it is an mvcjax solver object; otherwise a TypeError with the
+    spelling that works (a solver's name as a string is a common slip)."""
+    from ._solvers import AbstractSolver
+
+    if isinstance(solver, AbstractSolver):
+        return solver
+    if isinstance(solver, str):
+        fix = f"mvcjax.{solver}()" if solver.isidentifier() else "mvcjax.GaussNewton()"
+        raise TypeError(f"{name} must be an mvcjax solver object, not the string {solver!r}; "
+                        f"write {fix}.")
+    if isinstance(solver, type) and issubclass(solver, AbstractSolver):
+        raise TypeError(f"{name} must be an mvcjax solver object, got the class "
+                        f"{solver.__name__}; write mvcjax.{solver.__name__}().")
+    raise TypeError(f"{name} must be an mvcjax solver such as mvcjax.FixedG() or "
+                    f"mvcjax.GaussNewton(), got {type(solver).__name__}.")
+
+
+def finite_when_traced(array, message: str):
+    """`array`, raising `message` when it is run if it holds a NaN or an infinity: the
+    check, for values traced under `jit` or `grad`, that a concrete value gets on the
+    host."""
+    import equinox as eqx
+    import jax.numpy as jnp
+
+    return eqx.error_if(array, ~jnp.all(jnp.isfinite(array)), message)

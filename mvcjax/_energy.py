@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from ._checks import as_array, kind_of
 from ._stencils import EDGE, HANDLE, LAPLACIAN, Stencil, length_scale
 
 
@@ -20,8 +21,25 @@ def _safe_normalise(v: Float[Array, "m 2"]) -> Float[Array, "m 2"]:
 # in the normal matrix (float32 holds 7 digits, its squares 14).
 MAX_WEIGHT_RATIO = 1e8
 NORMAL_WEIGHT = 100.0
+# The least share of the largest shape term's weight that the Laplacian and mean value
+# terms keep (`Weights.tie_broken`).
+TIE_WEIGHT = 1e-4
 # Any positive weight, so that it and its square root stay normal float32 numbers.
 WEIGHT_RANGE = (1e-36, 1e36)
+
+
+def _weight(name: str):
+    """The converter of the weight `name`: a number to an array, anything else refused
+    by name (JAX's own error speaks of dtypes)."""
+    def convert(value):
+        if not isinstance(value, jax.Array):
+            host = as_array(value, f"Weights({name}=...)", "a number")
+            if host.dtype.kind not in "iuf":
+                raise TypeError(f"Weights({name}={value!r}): a weight is a number >= 0, got "
+                                f"{kind_of(host)}.")
+        return jnp.asarray(value)
+
+    return convert
 
 
 class Weights(eqx.Module):
@@ -51,10 +69,10 @@ class Weights(eqx.Module):
     Something other than a `Weights` is refused by `check_weights`.
     """
 
-    laplacian: Float[Array, ""] = eqx.field(default=1.0, converter=jnp.asarray)
-    mvc: Float[Array, ""] = eqx.field(default=1.0, converter=jnp.asarray)
-    length: Float[Array, ""] = eqx.field(default=1.0, converter=jnp.asarray)
-    handle: Float[Array, ""] = eqx.field(default=100.0, converter=jnp.asarray)
+    laplacian: Float[Array, ""] = eqx.field(default=1.0, converter=_weight("laplacian"))
+    mvc: Float[Array, ""] = eqx.field(default=1.0, converter=_weight("mvc"))
+    length: Float[Array, ""] = eqx.field(default=1.0, converter=_weight("length"))
+    handle: Float[Array, ""] = eqx.field(default=100.0, converter=_weight("handle"))
 
     def __check_init__(self):
         values = {k: getattr(self, k) for k in ("laplacian", "mvc", "length", "handle")}
@@ -99,6 +117,23 @@ class Weights(eqx.Module):
                 "positive)."
             )
 
+    def verified(self) -> Weights:
+        """The weights, checked when they are used where they are traced (under `jit`
+        or `grad`, where `Weights(...)` cannot look at them): a NaN, an infinite or a
+        negative weight, a zero handle weight or all shape terms at zero then raise
+        when the program runs, instead of giving NaN vertices."""
+        values = (self.laplacian, self.mvc, self.length, self.handle)
+        if not any(isinstance(v, jax.core.Tracer) for v in values):
+            return self
+        bad = (~jnp.all(jnp.isfinite(jnp.stack(values))) | (jnp.min(jnp.stack(values)) < 0)
+               | (self.handle <= 0) | (jnp.maximum(jnp.maximum(self.laplacian, self.mvc),
+                                                   self.length) <= 0))
+        return jax.tree.map(lambda w: eqx.error_if(
+            w, bad, "Weights given under jit or grad must be finite numbers >= 0, with a "
+            "positive handle weight and at least one positive shape term (laplacian, mvc or "
+            "length); check the values passed in (a log-weight exponentiated keeps them "
+            "positive)."), self)
+
     def astype(self, dtype) -> Weights:
         return jax.tree.map(lambda w: jnp.asarray(w, dtype), self)
 
@@ -111,7 +146,22 @@ class Weights(eqx.Module):
         weight): the same minimisers, and tolerances that mean what they mean at the
         defaults whatever the weights' overall scale (pure JAX, so it jits)."""
         factor = NORMAL_WEIGHT / self.largest()
-        return jax.tree.map(lambda w: w * factor, self)
+        return jax.tree.map(lambda w: w * factor, self.tie_broken())
+
+    def tie_broken(self) -> Weights:
+        """The weights with the Laplacian and mean value terms kept at least
+        `TIE_WEIGHT` times the largest shape term's weight.
+
+        Each term alone leaves some vertices free: the Laplacian holds only the outline,
+        the mean value rows only the inner vertices, and the edge lengths (every edge
+        off the outline) no corner of the outline that no inner edge reaches. With such
+        a term at zero the energy would have a valley of minima; the tie-break picks the
+        valley's point that the term picks as its weight goes to zero (the inner
+        vertices follow the outline by their mean value coordinates, the outline keeps
+        its detail)."""
+        tie = TIE_WEIGHT * jnp.maximum(jnp.maximum(self.laplacian, self.mvc), self.length)
+        return eqx.tree_at(lambda w: (w.laplacian, w.mvc), self,
+                           (jnp.maximum(self.laplacian, tie), jnp.maximum(self.mvc, tie)))
 
 
 def check_weights(weights, name: str = "weights") -> Weights:

@@ -25,7 +25,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
-from ._checks import kind_of
+from ._checks import check_solver, kind_of
 from ._render import Renderer, _picture, check_drawn_mesh, in_window
 from ._rig import Rig
 from ._solvers import DEFAULT_SOLVER, AbstractSolver
@@ -85,12 +85,7 @@ def _check_pair(rig, renderer) -> None:
 
 
 def _check_solver(solver) -> AbstractSolver:
-    if solver is None:
-        return DEFAULT_SOLVER
-    if not isinstance(solver, AbstractSolver):
-        raise TypeError(f"solver must be an mvcjax solver such as mvcjax.FixedG() (the "
-                        f"deformation's), or None for rig.deform's default, got {solver!r}.")
-    return solver
+    return DEFAULT_SOLVER if solver is None else check_solver(solver)
 
 
 def _check_in_view(rig, renderer, targets) -> None:

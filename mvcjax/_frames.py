@@ -13,7 +13,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Float
 
-from ._checks import kind_of
+from ._checks import as_array, check_solver, kind_of
 from ._rig import Rig, solve_in_frame
 from ._skinning import skin_frames_into
 from ._solvers import DEFAULT_SOLVER, AbstractSolver
@@ -98,7 +98,7 @@ def _deform_sharded(rig: Rig, targets, solver: AbstractSolver, chunk: int, mesh:
 def deform_frames(
     rig: Rig,
     targets: Any,
-    solver: AbstractSolver = DEFAULT_SOLVER,
+    solver: Any = DEFAULT_SOLVER,
     *,
     chunk: Any = 1024,
     devices: Any = None,
@@ -137,8 +137,9 @@ def deform_frames(
     such a frame comes back non-finite while the others are unaffected.
     """
     h = rig.handles.count
+    check_solver(solver)
     if not isinstance(targets, jax.core.Tracer):
-        host = np.asarray(targets)
+        host = as_array(targets, "targets", f"an array of shape (frames, {h}, 2)")
         if host.dtype.kind not in "iuf":
             raise TypeError(f"targets must be real (x, y) numbers, got {kind_of(host)}.")
         if host.ndim == 3 and host.shape[1:] == (h, 2):

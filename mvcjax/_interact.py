@@ -31,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._checks import check_solver
 from ._folds import signed_areas
 from ._frames import deform_frames
 from ._render import Renderer, _window, check_drawn_mesh, fit_window, in_window
@@ -168,9 +169,7 @@ class Posing:
         if not isinstance(rig, Rig):
             raise TypeError(f"rig must be an mvcjax.Rig (mvcjax.Rig.build(shape, handles)), "
                             f"got {type(rig).__name__}.")
-        if not isinstance(solver, AbstractSolver):
-            raise TypeError(f"solver must be an mvcjax solver such as mvcjax.FixedG(), got "
-                            f"{solver!r}.")
+        check_solver(solver)
         if isinstance(pick_radius, bool) or not (isinstance(pick_radius, (int, float))
                                                 and pick_radius > 0):
             raise ValueError(f"pick_radius must be a positive number of screen pixels, got "

@@ -11,7 +11,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
 from . import _coordinates as coords, _meshing as meshing, _topology as topology
-from ._checks import as_points, kind_of
+from ._checks import as_array, as_points, check_solver, finite_when_traced, kind_of
 from ._control import PaperControl, as_control
 from ._energy import Energy, Weights, check_weights, total_energy
 from ._factor import AbstractFactor, as_factor_method
@@ -379,11 +379,29 @@ class Rig(JittableModule):
         Recomputes the factor: with a dense `G` this is jittable and differentiable (no
         recompilation); a sparse factor is refactored on the host, outside `jit`.
         """
-        weights = check_weights(weights)
-        weights = weights.astype(self.energy.rest.dtype)
+        weights = check_weights(weights).verified().astype(self.energy.rest.dtype)
         energy = eqx.tree_at(lambda e: e.weights, self.energy, weights)
         factor = self.factor.rebuild(energy)
         return eqx.tree_at(lambda r: (r.energy, r.factor), self, (energy, factor))
+
+    def _check_init(self, init: Any) -> Any:
+        """`init`: a start's name, or `(c, 2)` finite control vertices (checked on the
+        host where concrete, when run where traced)."""
+        if isinstance(init, str):
+            if init not in STARTS:
+                raise ValueError(f"init must be one of {STARTS} or a (c, 2) array, got "
+                                 f"{init!r}.")
+            return init
+        message = ("init holds NaN or infinite coordinates; give finite (x, y) control "
+                   "vertices (a previous frame's), or a start's name such as 'turned'.")
+        if isinstance(init, jax.core.Tracer):
+            return finite_when_traced(init, message)
+        host = as_array(init, "init", f"an array of shape {self.energy.rest.shape}")
+        if host.dtype.kind not in "iuf":
+            raise TypeError(f"init must hold real (x, y) numbers, got {kind_of(host)}.")
+        if not np.all(np.isfinite(host)):
+            raise ValueError(message)
+        return init
 
     def _local_start(self, targets: Float[Array, "t 2"], init: Any) -> Float[Array, "c 2"]:
         """The start for targets in the rig's frame (a row per target)."""
@@ -409,26 +427,29 @@ class Rig(JittableModule):
                 fit the targets), `"rest"` (the paper's start), or an explicit `(c, 2)`
                 array (a previous frame's control vertices, for instance).
         """
-        if isinstance(init, str) and init not in STARTS:
-            raise ValueError(f"init must be one of {STARTS} or a (c, 2) array, got {init!r}.")
-        return self.frame.to_world(
-            self._local_start(self.frame.to_local(self._check_targets(targets)), init))
+        return self.frame.to_world(self._local_start(
+            self.frame.to_local(self._check_targets(targets)), self._check_init(init)))
 
     def _check_targets(self, targets) -> Float[Array, "h 2"]:
         h = self.handles.count
         if not isinstance(targets, jax.core.Tracer):
             # Concrete targets (also when closed over inside jit) are checked on the host.
-            try:
-                host = np.asarray(targets)
-            except ValueError:
-                raise ValueError(f"targets must be an array of shape ({h}, 2); got a ragged "
-                                 "sequence.") from None
+            host = as_array(targets, "targets", f"an array of shape ({h}, 2)")
             if host.dtype.kind not in "iuf":
                 raise TypeError(f"targets must be real (x, y) numbers, got {kind_of(host)}; "
                                 f"pass a float array of shape ({h}, 2).")
             if host.shape == (h, 2) and not np.all(np.isfinite(host)):
                 raise ValueError("targets contain NaN or infinite values; give finite (x, y) "
                                  "targets.")
+            dtype = self.energy.rest.dtype
+            with np.errstate(over="ignore"):
+                representable = np.all(np.isfinite(host.astype(dtype)))
+            if host.shape == (h, 2) and not representable:
+                raise ValueError(
+                    f"targets reach {np.abs(host).max():.3g}, beyond {np.dtype(dtype).name}'s "
+                    f"range (the rig's precision): give targets in the shape's units, or "
+                    "build the rig with dtype=jnp.float64 (after "
+                    "jax.config.update('jax_enable_x64', True)).")
         targets = jnp.asarray(targets)
         if not jnp.issubdtype(targets.dtype, jnp.floating) and not jnp.issubdtype(
                 targets.dtype, jnp.integer):
@@ -439,13 +460,6 @@ class Rig(JittableModule):
                 "for several frames, use jax.vmap over a leading axis or mvcjax.deform_frames."
             )
         return targets.astype(self.energy.rest.dtype)
-
-    def _check_solver(self, solver) -> None:
-        if not isinstance(solver, AbstractSolver):
-            raise TypeError(
-                f"solver must be an mvcjax solver such as mvcjax.FixedG() or "
-                f"mvcjax.GaussNewton(), got {solver!r}."
-            )
 
     def solve(
         self,
@@ -471,8 +485,9 @@ class Rig(JittableModule):
         Returns:
             `(c, 2)` control vertices, and the `SolveInfo` if asked for.
         """
-        self._check_solver(solver)
-        vertices, info = _solve(self, self._check_targets(targets), solver, init)
+        check_solver(solver)
+        vertices, info = _solve(self, self._check_targets(targets), solver,
+                               self._check_init(init))
         return (vertices, info) if return_info else vertices
 
     def energy_history(
@@ -495,14 +510,14 @@ class Rig(JittableModule):
             steps: how many steps to record.
             init: the start, see `Rig.start`.
         """
-        self._check_solver(solver)
+        check_solver(solver)
         if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)):
             raise TypeError(f"steps must be an int, got {steps!r}.")
         if steps < 1:
             raise ValueError(f"steps must be at least 1, got {steps}.")
         local = self.frame.to_local(self._check_targets(targets))
         history = solver.history(self.energy, self.factor, self.handles.pinned_targets(local),
-                                 self._local_start(local, init), steps)
+                                 self._local_start(local, self._check_init(init)), steps)
         return history * self.frame.scale**2
 
     def energy_at(self, control_vertices: Float[ArrayLike, "c 2"],
@@ -542,8 +557,9 @@ class Rig(JittableModule):
     ):
         """Solve, then skin: the deformed shape-mesh vertices `(n, 2)` (and the info) for
         `(h, 2)` targets; the arguments are those of `solve`."""
-        self._check_solver(solver)
-        shape, info = _deform(self, self._check_targets(targets), solver, init)
+        check_solver(solver)
+        shape, info = _deform(self, self._check_targets(targets), solver,
+                              self._check_init(init))
         return (shape, info) if return_info else shape
 
     def __repr__(self) -> str:

@@ -11,7 +11,7 @@ import shapely
 import shapely.ops
 from jaxtyping import Float
 
-from ._checks import as_points, kind_of
+from ._checks import as_array, as_points, kind_of
 
 
 def _as_ring(points, name: str) -> np.ndarray:
@@ -289,7 +289,7 @@ class Shape:
 
         picture = isinstance(image, (str, os.PathLike)) or _is_pil_image(image)
         if not picture:
-            image = np.asarray(image)
+            image = as_array(image, "image", "a 2D mask or a picture (rows, cols[, channels])")
             picture = image.ndim == 3 and image.dtype.kind != "b"
             if image.ndim == 3 and image.dtype.kind == "b":
                 raise ValueError(f"mask must be a 2D image, got booleans of shape {image.shape}; "

@@ -1,0 +1,73 @@
+"""Bad input at the public API's edges: each refused by an error that names the input,
+the problem and the fix, never a NaN or a JAX-internal message."""
+
+import re
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import mvcjax
+
+from conftest import drag
+
+
+@pytest.fixture(scope="module")
+def rig32(horse):
+    return mvcjax.Rig.build(horse, mvcjax.datasets.horse_handles(), dtype=jnp.float32)
+
+
+@pytest.mark.parametrize("solver", ["GaussNewton", mvcjax.GaussNewton, 3])
+def test_a_solver_must_be_an_object(horse_rig, solver):
+    t = drag(horse_rig, np.zeros((5, 2)))
+    renderer = mvcjax.Renderer.build(horse_rig, size=(16, 16))
+    picture = np.zeros((16, 16, 4), np.float32)
+    expected = {"GaussNewton": "not the string 'GaussNewton'; write mvcjax.GaussNewton()",
+                3: "such as mvcjax.FixedG()"}.get(solver, "the class GaussNewton; write "
+                                                          "mvcjax.GaussNewton()")
+    for call in (lambda: horse_rig.deform(t, solver),
+                 lambda: mvcjax.deform_frames(horse_rig, jnp.stack([t, t]), solver=solver),
+                 lambda: mvcjax.fit_targets(horse_rig, renderer, picture, solver=solver)):
+        with pytest.raises(TypeError, match=re.escape(expected)):
+            call()
+
+
+def test_ragged_sequences_are_named(horse_rig):
+    with pytest.raises(ValueError, match=r"targets must be .*ragged"):
+        horse_rig.deform([[1.0, 2.0], [3.0]])
+    with pytest.raises(ValueError, match=r"targets must be .*ragged"):
+        mvcjax.deform_frames(horse_rig, [[[1.0, 2.0]], [[3.0]]])
+    with pytest.raises(ValueError, match=r"image must be .*ragged"):
+        mvcjax.Shape.from_image([[True, False], [True]])
+    with pytest.raises(ValueError, match=r"init must be .*ragged"):
+        horse_rig.deform(horse_rig.handle_positions, init=[[1.0, 2.0], [3.0]])
+
+
+def test_a_weight_must_be_a_number():
+    with pytest.raises(TypeError, match=r"Weights\(mvc='stiff'\): a weight is a number"):
+        mvcjax.Weights(mvc="stiff")
+
+
+def test_non_finite_init_is_refused(horse_rig):
+    bad = np.full(horse_rig.control_mesh.vertices.shape, np.nan)
+    with pytest.raises(ValueError, match="init holds NaN"):
+        horse_rig.deform(horse_rig.handle_positions, init=bad)
+    # Traced, the check runs with the program.
+    with pytest.raises(Exception, match="init holds NaN"):
+        jax.jit(lambda i: horse_rig.deform(horse_rig.handle_positions, init=i))(bad)
+
+
+@pytest.mark.parametrize("weight", [np.nan, -1.0, np.inf])
+def test_bad_weights_under_jit_raise_instead_of_nan(horse_rig, weight):
+    t = drag(horse_rig, [[10.0, 0.0]] + [[0.0, 0.0]] * 4)
+    deform = jax.jit(lambda w: horse_rig.with_weights(mvcjax.Weights(mvc=w)).deform(t))
+    assert np.all(np.isfinite(np.asarray(deform(2.0))))
+    with pytest.raises(Exception, match="Weights given under jit or grad must be finite"):
+        deform(weight)
+
+
+def test_targets_beyond_the_rigs_precision_are_refused(rig32):
+    t = np.asarray(rig32.handle_positions, np.float64) * 1e39
+    with pytest.raises(ValueError, match="beyond float32's range.*dtype=jnp.float64"):
+        rig32.deform(t)
