@@ -844,6 +844,16 @@ def run_case(name: str, timeout: float, memory_gib: float) -> dict:
     return result
 
 
+def format_table(results: list[dict]) -> str:
+    """The markdown table of the outcomes' counts, and how many cases kept the promise."""
+    counts = collections.Counter(r["outcome"] for r in results)
+    lines = ["| outcome | cases |", "|---|---|"]
+    lines += [f"| {outcome} | {counts.get(outcome, 0)} |" for outcome in OUTCOMES]
+    bad = [r for r in results if r["outcome"] not in ("clear error", "accepted, correct")]
+    lines += ["", f"{len(results) - len(bad)} of {len(results)} cases kept mvcjax's promise."]
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="a subset of a few minutes")
@@ -868,11 +878,8 @@ def main(argv=None) -> int:
               f"{result['seconds']:>6.1f} s  {result['message'][:110]}", flush=True)
 
     counts = collections.Counter(r["outcome"] for r in results)
-    print("\n| outcome | cases |\n|---|---|")
-    for outcome in OUTCOMES:
-        print(f"| {outcome} | {counts.get(outcome, 0)} |")
-    bad = [r for r in results if r["outcome"] not in ("clear error", "accepted, correct")]
-    print(f"\n{len(results) - len(bad)} of {len(results)} cases kept mvcjax's promise.")
+    print()
+    print(format_table(results))
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"cases": results, "counts": dict(counts)}, f, indent=1)

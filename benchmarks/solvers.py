@@ -49,8 +49,8 @@ def solvers():
         # The earlier default, for comparison in the same run: 8 plain CG iterations a step.
         "gauss_newton_cg8_undeflated": (mvcjax.GaussNewton(cg_steps=8, cg_deflate=False), 400),
         "gauss_newton_cholesky": (mvcjax.GaussNewton(linear_solver="cholesky"), 200),
-        "jaxopt_gauss_newton": (mvcjax.JaxoptGaussNewton(), 200),
-        "jaxopt_levenberg_marquardt": (mvcjax.JaxoptLevenbergMarquardt(), 200),
+        "jaxopt_gauss_newton": (mvcjax.advanced.JaxoptGaussNewton(), 200),
+        "jaxopt_levenberg_marquardt": (mvcjax.advanced.JaxoptLevenbergMarquardt(), 200),
     }
 
 

@@ -18,8 +18,8 @@ import shapely
 
 from . import _meshing as meshing, _topology as topology
 from ._checks import as_points
-from ._frame import points_to_local
 from ._handles import bone_samples, bone_samples_on
+from ._local_frame import points_to_local
 
 
 class ControlParts(NamedTuple):

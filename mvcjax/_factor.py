@@ -553,6 +553,7 @@ def as_factor_method(factor) -> AbstractFactorMethod:
     if isinstance(factor, str) and factor in _FACTOR_NAMES:
         return _FACTOR_NAMES[factor]()
     raise ValueError(
-        "factor must be one of mvcjax.DenseG(), mvcjax.SparseLU() or mvcjax.FactorBySize() "
+        "factor must be one of mvcjax.advanced.DenseG(), mvcjax.advanced.SparseLU() or "
+        "mvcjax.advanced.FactorBySize() "
         f"(or the names 'dense', 'sparse', None), got {factor!r}."
     )

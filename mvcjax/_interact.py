@@ -31,9 +31,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._animation import deform_frames
 from ._checks import check_solver
 from ._folds import signed_areas
-from ._frames import deform_frames
 from ._render import Renderer, _window, check_drawn_mesh, fit_window, in_window
 from ._rig import Rig
 from ._solvers import DEFAULT_SOLVER, AbstractSolver, FoldFree

@@ -16,8 +16,8 @@ from ._control import PaperControl, as_control
 from ._energy import Energy, Weights, check_weights, total_energy
 from ._factor import AbstractFactor, as_factor_method
 from ._folds import inverted_count
-from ._frame import Frame, bounding_frame, check_representable, frame_array, points_to_local
 from ._handles import Handles, check_handles, make_handles, pin
+from ._local_frame import Frame, bounding_frame, check_representable, frame_array, points_to_local
 from ._module import JittableModule
 from ._shape import Shape
 from ._skinning import BarycentricSkinning, Skinning, as_skinning
@@ -262,10 +262,10 @@ class Rig(JittableModule):
                 edges) or `mvcjax.BarycentricSkinning()` (the paper's "control mesh
                 only"); the short names `"blended"`, `"mvc"` and `"barycentric"` work too.
                 Ignored with `FullSolve()` (the shape mesh carries itself).
-            factor: the global step of the fixed-G iteration: `mvcjax.DenseG()` (the
+            factor: the global step of the fixed-G iteration: `mvcjax.advanced.DenseG()` (the
                 paper's `G`, recomputed inside `jit` when weights change),
-                `mvcjax.SparseLU()` (for meshes of thousands of vertices) or
-                `mvcjax.FactorBySize()` (default: dense up to 1000 control vertices); the
+                `mvcjax.advanced.SparseLU()` (for meshes of thousands of vertices) or
+                `mvcjax.advanced.FactorBySize()` (default: dense up to 1000 control vertices); the
                 older names `"dense"`, `"sparse"` and `None` work too.
             dtype: `jnp.float32` or `jnp.float64` (default: JAX's default float; float64
                 needs `jax_enable_x64`).

@@ -17,7 +17,7 @@ from jaxtyping import Array, Float, Int
 
 from . import _coordinates as coords, _topology as topology
 from ._batching import only_batched, with_batching_rule
-from ._frame import Frame
+from ._local_frame import Frame
 from ._module import JittableModule
 from ._xla import materialise
 

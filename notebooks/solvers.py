@@ -69,7 +69,7 @@ solvers = {
     "gauss_newton": mvcjax.GaussNewton(),
     "dogleg": mvcjax.Dogleg(),
     "levenberg_marquardt": mvcjax.LevenbergMarquardt(),
-    "jaxopt_levenberg_marquardt": mvcjax.JaxoptLevenbergMarquardt(),
+    "jaxopt_levenberg_marquardt": mvcjax.advanced.JaxoptLevenbergMarquardt(),
 }
 
 
@@ -104,7 +104,7 @@ recorded = {
     "gauss_newton": (mvcjax.GaussNewton(), 150),
     "dogleg": (mvcjax.Dogleg(), 150),
     "levenberg_marquardt": (mvcjax.LevenbergMarquardt(), 150),
-    "jaxopt_levenberg_marquardt": (mvcjax.JaxoptLevenbergMarquardt(), 60),
+    "jaxopt_levenberg_marquardt": (mvcjax.advanced.JaxoptLevenbergMarquardt(), 60),
 }
 histories = {
     name: np.asarray(jax.jit(lambda t, s=s, n=n: rig.energy_history(t, s, n))(targets))

@@ -64,7 +64,7 @@ def scipy_minimum(rig, targets, start, method="lm"):
     reference): control vertices `(c, 2)` and the energy there, in the user's units (the
     rig's energy is in its own frame)."""
     local_targets = rig.frame.to_local(rig.pinned_targets(targets))
-    fun = jax.jit(lambda x: mvcjax.residuals(rig.energy, x.reshape(-1, 2), local_targets))
+    fun = jax.jit(lambda x: mvcjax.advanced.residuals(rig.energy, x.reshape(-1, 2), local_targets))
     jac = jax.jit(jax.jacfwd(fun))
     result = scipy.optimize.least_squares(
         lambda x: np.asarray(fun(x)), np.asarray(rig.frame.to_local(start)).ravel(),
@@ -136,9 +136,9 @@ SLOW = [
     "tests/test_descents.py::test_structured_descents_keep_float32",
     # Many frames: sharded, through the sparse factor, and gradients (test_batching has
     # gradients through vmap).
-    "tests/test_frames.py::test_frames_sharded_over_four_devices_give_the_same_result",
-    "tests/test_frames.py::test_gradient_through_frames_matches_single_frames",
-    "tests/test_frames.py::test_fixed_g_vmapped_steps_all_frames_as_plain_batching_would[sparse]",
+    "tests/test_animation.py::test_frames_sharded_over_four_devices_give_the_same_result",
+    "tests/test_animation.py::test_gradient_through_frames_matches_single_frames",
+    "tests/test_animation.py::test_fixed_g_vmapped_steps_all_frames_as_plain_batching_would[sparse]",
     "tests/test_factor.py::test_gauss_newton_on_the_sparse_factor_over_frames",
     "tests/test_factor.py::test_gradient_through_the_sparse_solve",
     "tests/test_rig.py::test_structured_solvers_run_on_the_sparse_factor[GaussNewton]",

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import mvcjax
-from mvcjax import DenseFactor, FactorSolver, SparseFactor
 from mvcjax._factor import as_factor_method, sparse_operators
+from mvcjax.advanced import DenseFactor, FactorSolver, SparseFactor
 
 from conftest import directional_derivatives, drag, local_point
 
@@ -23,7 +23,7 @@ def small_full(ring_shape):
 
 def test_sparse_and_dense_steps_agree(small_full):
     energy = small_full.energy
-    dense, sparse = mvcjax.DenseG()(energy), mvcjax.SparseLU()(energy)
+    dense, sparse = mvcjax.advanced.DenseG()(energy), mvcjax.advanced.SparseLU()(energy)
     assert isinstance(dense, DenseFactor) and isinstance(sparse, SparseFactor)
     targets, v = local_point(small_full, [[10.0, 5.0], [0.0, -3.0]], 1e-2)
     a = dense.step(v.T, dense.handle_part(targets))
@@ -70,7 +70,7 @@ def test_normal_products_agree_and_invert(small_full):
     # N x: the least-squares solvers' structured Gauss-Newton matrix is N less the
     # rotation terms, on either factor.
     energy = small_full.energy
-    dense, sparse = mvcjax.DenseG()(energy), mvcjax.SparseLU()(energy)
+    dense, sparse = mvcjax.advanced.DenseG()(energy), mvcjax.advanced.SparseLU()(energy)
     x = jax.random.normal(jax.random.key(2), (2, energy.num_vertices), energy.rest.dtype)
     product = sparse.multiply_normal(x)
     np.testing.assert_allclose(product, dense.multiply_normal(x), rtol=1e-10,
@@ -111,7 +111,8 @@ def test_factors_as_lineax_operators_and_solvers(small_full, kind):
 def test_gauss_newton_on_the_sparse_factor_matches_the_dense(small_full):
     targets = drag(small_full, [[10.0, 5.0], [0.0, -3.0]])
     sparse, info = small_full.solve(targets, mvcjax.GaussNewton(), return_info=True)
-    dense_rig = eqx.tree_at(lambda r: r.factor, small_full, mvcjax.DenseG()(small_full.energy))
+    dense_rig = eqx.tree_at(lambda r: r.factor, small_full,
+                            mvcjax.advanced.DenseG()(small_full.energy))
     dense = dense_rig.solve(targets, mvcjax.GaussNewton())
     assert bool(info.converged), int(info.iterations)
     np.testing.assert_allclose(sparse, dense, atol=1e-7 * float(small_full.frame.scale))
@@ -135,7 +136,7 @@ def test_factors_are_blind_to_the_weights_overall_scale(small_full):
     tiny = eqx.tree_at(lambda e: e.weights, energy,
                        mvcjax.Weights(1e-30, 1e-30, 1e-30, 1e-28).astype(jnp.float64))
     targets, v = local_point(small_full, [[10.0, 5.0], [0.0, -3.0]], 1e-2)
-    for make in (mvcjax.DenseG(), mvcjax.SparseLU()):
+    for make in (mvcjax.advanced.DenseG(), mvcjax.advanced.SparseLU()):
         a, b = make(energy), make(tiny)
         np.testing.assert_allclose(b.step(v.T, b.handle_part(targets)),
                                    a.step(v.T, a.handle_part(targets)), atol=1e-12)

@@ -124,7 +124,7 @@ SOLVERS = {
     "gauss_newton": mvcjax.GaussNewton(max_steps=500),
     "levenberg_marquardt": mvcjax.LevenbergMarquardt(max_steps=1000),
     "dogleg": mvcjax.Dogleg(max_steps=500),
-    "jaxopt_levenberg_marquardt": mvcjax.JaxoptLevenbergMarquardt(max_steps=1000),
+    "jaxopt_levenberg_marquardt": mvcjax.advanced.JaxoptLevenbergMarquardt(max_steps=1000),
 }
 
 
@@ -149,7 +149,7 @@ def test_undamped_gauss_newton_says_when_it_stalls(bone_rig):
     # the damped solvers reach (it converges only for drags of 10 degrees or so): it must
     # say so rather than return the stalled pose as a solve.
     targets = arm_raised(bone_rig, 30.0)
-    _, stalled = bone_rig.solve(targets, mvcjax.JaxoptGaussNewton(max_steps=500),
+    _, stalled = bone_rig.solve(targets, mvcjax.advanced.JaxoptGaussNewton(max_steps=500),
                                 return_info=True)
     _, damped = bone_rig.solve(targets, SOLVERS["levenberg_marquardt"], return_info=True)
     assert bool(damped.converged)

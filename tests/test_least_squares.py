@@ -32,7 +32,7 @@ def test_residuals_are_the_energy(problem):
     p, vertices = problem
     # The weights scaled so that the largest (40) is 100 (Weights.normalised).
     r = p.residuals(p.scaled(vertices))
-    energy = mvcjax.total_energy(p.energy, vertices, p.targets)
+    energy = mvcjax.advanced.total_energy(p.energy, vertices, p.targets)
     assert float(jnp.sum(r * r)) * float(p.energy.scale) ** 2 * 0.4 == pytest.approx(
         float(energy), rel=1e-12)
 
@@ -43,14 +43,14 @@ def test_residual_jacobian_gives_the_energy_gradient(problem):
     p, vertices = problem
     r, vjp = jax.vjp(p.residuals, p.scaled(vertices))
     (jtr,) = vjp(r)
-    gradient = jax.grad(mvcjax.total_energy, argnums=1)(p.energy, vertices, p.targets)
+    gradient = jax.grad(mvcjax.advanced.total_energy, argnums=1)(p.energy, vertices, p.targets)
     np.testing.assert_allclose(jtr.T * float(p.energy.scale) * 0.4, 0.5 * gradient,
                                rtol=1e-9, atol=1e-9 * float(jnp.abs(gradient).max()))
 
 
 def test_energy_of_columns_is_the_energy(problem):
     p, vertices = problem
-    energy = mvcjax.total_energy(p.energy, vertices, p.targets)
+    energy = mvcjax.advanced.total_energy(p.energy, vertices, p.targets)
     assert float(p.energy_of_columns(vertices.T)) == pytest.approx(float(energy), rel=1e-12)
 
 

@@ -197,7 +197,7 @@ def test_a_dense_jacobian_that_does_not_fit_is_refused(horse):
     with pytest.raises(ValueError, match="linear_solver='cg'"):
         full.solve(full.handle_positions, mvcjax.GaussNewton(linear_solver="cholesky"))
     with pytest.raises(ValueError, match="use mvcjax.FixedG"):
-        full.solve(full.handle_positions, mvcjax.JaxoptLevenbergMarquardt())
+        full.solve(full.handle_positions, mvcjax.advanced.JaxoptLevenbergMarquardt())
     assert bool(jnp.all(jnp.isfinite(full.deform(full.handle_positions + 5.0))))
 
 
@@ -215,10 +215,10 @@ def test_options_as_objects_build_what_the_old_spellings_do(horse, horse_rig):
     handles = datasets.horse_handles()
     given = mvcjax.Rig.build(horse, handles, dtype=jnp.float64,
                              control=mvcjax.GivenControl(cm.vertices, cm.faces),
-                             factor=mvcjax.SparseLU())
-    assert isinstance(given.factor, mvcjax.SparseFactor)
+                             factor=mvcjax.advanced.SparseLU())
+    assert isinstance(given.factor, mvcjax.advanced.SparseFactor)
     paper = mvcjax.Rig.build(horse, handles, dtype=jnp.float64, control=mvcjax.PaperControl(),
-                             factor=mvcjax.DenseG(), skinning=mvcjax.BlendedMVCSkinning())
+                             factor=mvcjax.advanced.DenseG(), skinning=mvcjax.BlendedMVCSkinning())
     targets = drag(horse_rig, [[30.0, 0.0], [0, 0], [0, 0], [0, 0], [0, 0]])
     for rig in (given, paper):
         np.testing.assert_allclose(rig.deform(targets), horse_rig.deform(targets), atol=1e-8)
@@ -228,11 +228,11 @@ def test_options_as_objects_build_what_the_old_spellings_do(horse, horse_rig):
     np.testing.assert_array_equal(coarse.control_mesh.faces, keyword.control_mesh.faces)
     assert coarse.control_mesh.vertices.shape[0] < cm.vertices.shape[0]
     # FactorBySize decides by the control mesh's size.
-    small = mvcjax.Rig.build(horse, handles, factor=mvcjax.FactorBySize(max_dense=50))
-    assert isinstance(small.factor, mvcjax.SparseFactor)
+    small = mvcjax.Rig.build(horse, handles, factor=mvcjax.advanced.FactorBySize(max_dense=50))
+    assert isinstance(small.factor, mvcjax.advanced.SparseFactor)
     with pytest.raises(ValueError, match="given twice"):
         mvcjax.Rig.build(horse, handles, control=mvcjax.PaperControl(spacing=40.0), margin=3.0)
-    with pytest.raises(ValueError, match="factor must be one of mvcjax.DenseG"):
+    with pytest.raises(ValueError, match="factor must be one of mvcjax.advanced.DenseG"):
         mvcjax.Rig.build(horse, handles, factor="lu")
 
 

@@ -166,7 +166,7 @@ def test_packed_rows_give_back_the_rows_and_the_same_map(tile):
     assert tile_weight.shape[2] == tile and len(np.unique(slot)) == 100
     np.testing.assert_array_equal(tile_index[:, slot // tile].T, index)
     np.testing.assert_array_equal(tile_weight[:, slot // tile, slot % tile].T, weight)
-    skin = mvcjax.Skinning.from_rows(index, weight, mvcjax.MVCSkinning(), jnp.float64)
+    skin = mvcjax.advanced.Skinning.from_rows(index, weight, mvcjax.MVCSkinning(), jnp.float64)
     np.testing.assert_array_equal(skin.indices, index)
     np.testing.assert_array_equal(skin.weights, weight)
     control = jnp.asarray(rng.normal(size=(30, 2)))

@@ -54,7 +54,8 @@ def test_fixed_g_options_are_checked(kwargs, error, message):
         mvcjax.FixedG(**kwargs)
 
 
-@pytest.mark.parametrize("solver", [mvcjax.JaxoptGaussNewton, mvcjax.JaxoptLevenbergMarquardt])
+@pytest.mark.parametrize("solver", [mvcjax.advanced.JaxoptGaussNewton,
+                                    mvcjax.advanced.JaxoptLevenbergMarquardt])
 def test_jaxopt_options_are_checked(solver):
     with pytest.raises(ValueError, match="finite number >= 0"):
         solver(tol=-1.0)
@@ -137,8 +138,8 @@ def test_option_errors_name_the_solver_the_option_and_the_fix():
     (lambda: mvcjax.FixedG(regularisation=-1e-3), ValueError, "regularisation"),
     (lambda: mvcjax.Dogleg(cg_rtol="loose"), TypeError, r"Dogleg\(cg_rtol='loose'\)"),
     (lambda: mvcjax.LevenbergMarquardt(cg_steps=4.0), TypeError, "cg_steps"),
-    (lambda: mvcjax.JaxoptGaussNewton(tol=float("inf")), ValueError, "finite number"),
-    (lambda: mvcjax.JaxoptLevenbergMarquardt(max_steps=False), TypeError, "whole number"),
+    (lambda: mvcjax.advanced.JaxoptGaussNewton(tol=float("inf")), ValueError, "finite number"),
+    (lambda: mvcjax.advanced.JaxoptLevenbergMarquardt(max_steps=False), TypeError, "whole number"),
     (lambda: mvcjax.FixedG().fixed_steps(2.5), TypeError, r"fixed_steps\(2.5\)"),
     (lambda: mvcjax.GaussNewton().fixed_steps(0), ValueError, "at least 1 step"),
 ])
@@ -172,7 +173,7 @@ def test_check_weights_says_how_to_write_weights():
     mvcjax.FixedG(), mvcjax.FixedG(stop_early=True, iterations=50),
     mvcjax.FixedG(stop_early=True, iterations=50, adjoint="implicit"),
     mvcjax.FixedG(anderson=3), mvcjax.GaussNewton(), mvcjax.Dogleg(),
-    mvcjax.JaxoptGaussNewton(),
+    mvcjax.advanced.JaxoptGaussNewton(),
 ], ids=repr)
 def test_an_overflowing_energy_is_not_converged(solver):
     # A float32 target at 1e20 (in the rig's frame) met the step tolerances at once,

@@ -22,8 +22,8 @@ TIGHT = {
     "gauss_newton_cholesky": mvcjax.GaussNewton(max_steps=500, linear_solver="cholesky"),
     "levenberg_marquardt": mvcjax.LevenbergMarquardt(max_steps=1000),
     "dogleg": mvcjax.Dogleg(max_steps=500),
-    "jaxopt_gauss_newton": mvcjax.JaxoptGaussNewton(max_steps=500),
-    "jaxopt_levenberg_marquardt": mvcjax.JaxoptLevenbergMarquardt(max_steps=1000),
+    "jaxopt_gauss_newton": mvcjax.advanced.JaxoptGaussNewton(max_steps=500),
+    "jaxopt_levenberg_marquardt": mvcjax.advanced.JaxoptLevenbergMarquardt(max_steps=1000),
 }
 
 # Drags from the rest pose (handle, offset) where every solver reaches the same minimum.
@@ -197,7 +197,7 @@ def test_jaxopt_does_not_warn_users():
         "    import mvcjax\n"
         "    from mvcjax import datasets\n"
         "    rig = mvcjax.Rig.build(datasets.stick(), datasets.stick_handles())\n"
-        "    rig.solve(rig.handle_positions, mvcjax.JaxoptGaussNewton(max_steps=2))\n"
+        "    rig.solve(rig.handle_positions, mvcjax.advanced.JaxoptGaussNewton(max_steps=2))\n"
         "print([str(w.message) for w in seen if 'JAXopt' in str(w.message)])\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
@@ -240,7 +240,7 @@ IMPLICIT = {
     "gauss_newton": mvcjax.GaussNewton(),
     "levenberg_marquardt": mvcjax.LevenbergMarquardt(),
     "dogleg": mvcjax.Dogleg(),
-    "jaxopt_levenberg_marquardt": mvcjax.JaxoptLevenbergMarquardt(),
+    "jaxopt_levenberg_marquardt": mvcjax.advanced.JaxoptLevenbergMarquardt(),
     "fixed_g_implicit": mvcjax.FixedG(iterations=20000, rtol=1e-12, stop_early=True,
                                       adjoint="implicit"),
     "anderson_implicit": mvcjax.FixedG(iterations=5000, rtol=1e-12, stop_early=True,
@@ -293,7 +293,7 @@ def test_stop_early_differentiates_in_reverse_mode_either_way(stick_gradients):
 
 @pytest.mark.parametrize("solver", [
     mvcjax.FixedG(), mvcjax.FixedG(anderson=5), mvcjax.GaussNewton(), mvcjax.Dogleg(),
-    mvcjax.JaxoptLevenbergMarquardt(),
+    mvcjax.advanced.JaxoptLevenbergMarquardt(),
 ], ids=lambda s: type(s).__name__ + ("_anderson" if getattr(s, "anderson", 0) else ""))
 def test_energy_history_ends_where_the_solve_does(horse_rig, solver):
     targets = targets_for(horse_rig, 0, [60.0, 0.0])
@@ -352,7 +352,8 @@ def test_energy_history_errors(horse_rig):
 
 
 @pytest.mark.parametrize("solver", [mvcjax.FixedG(stop_early=True), mvcjax.GaussNewton(),
-                                    mvcjax.JaxoptGaussNewton()], ids=lambda s: type(s).__name__)
+                                    mvcjax.advanced.JaxoptGaussNewton()],
+                         ids=lambda s: type(s).__name__)
 def test_fixed_steps_runs_exactly_that_many(horse_rig, solver):
     targets = targets_for(horse_rig, 0, [20.0, 0.0])
     _, info = horse_rig.solve(targets, solver.fixed_steps(7), return_info=True)
@@ -368,7 +369,7 @@ def test_gradient_through_jaxopt_gauss_newton_where_it_converges():
     model = mvcjax.datasets.model("stick")
     rig = model.rig(dtype=jnp.float64)
     targets = rig.handle_positions + 0.25 * jnp.asarray(model.drag)
-    jaxopt_gn = mvcjax.JaxoptGaussNewton()
+    jaxopt_gn = mvcjax.advanced.JaxoptGaussNewton()
     assert bool(rig.solve(targets, jaxopt_gn, return_info=True)[1].converged)
 
     def loss(solver, t):
@@ -386,7 +387,7 @@ def test_gradient_through_jaxopt_gauss_newton_where_it_converges():
 
 
 def test_a_solver_without_a_history_says_so(horse_rig):
-    class Plain(mvcjax.AbstractSolver):
+    class Plain(mvcjax.advanced.AbstractSolver):
         def solve(self, energy, factor, targets, init):
             return init, None
 

@@ -167,7 +167,7 @@ def check_tolerance(solver: AbstractSolver, name: str, default: str = "") -> Non
         raise ValueError(f"{where}: a tolerance must be a finite number >= 0{fix}.")
 
 
-def honest(converged: Array, vertices: Array, energy: Array) -> Array:
+def converged_and_finite(converged: Array, vertices: Array, energy: Array) -> Array:
     """A solve converged only if its result is finite: a tolerance met at an infinite
     energy (a target at 1e20) is no convergence."""
     return converged & jnp.isfinite(energy) & jnp.all(jnp.isfinite(vertices))

@@ -19,7 +19,7 @@ from ._base import (
     check_count,
     check_steps,
     check_tolerance,
-    honest,
+    converged_and_finite,
     python_scalar,
 )
 from ._least_squares import ScaledProblem
@@ -237,7 +237,7 @@ class FixedG(AbstractSolver):
         )
         value = total_energy(energy, vertices, targets)
         return vertices, SolveInfo(
-            converged=honest(converged > 0, vertices, value),
+            converged=converged_and_finite(converged > 0, vertices, value),
             iterations=iterations.astype(jnp.int32),
             energy=value,
         )
@@ -282,7 +282,7 @@ class FixedG(AbstractSolver):
         vertices = columns.T
         value = total_energy(energy, vertices, targets)
         info = SolveInfo(
-            converged=honest(bound <= tol, vertices, value),
+            converged=converged_and_finite(bound <= tol, vertices, value),
             iterations=iterations,
             energy=value,
         )
@@ -332,7 +332,7 @@ class FixedG(AbstractSolver):
 
         def frame_info(bound, vertices, targets):
             value = total_energy(energy, vertices, targets)
-            return SolveInfo(converged=honest(bound <= tol, vertices, value),
+            return SolveInfo(converged=converged_and_finite(bound <= tol, vertices, value),
                              iterations=jnp.asarray(self.iterations, jnp.int32), energy=value)
 
         info = jax.vmap(frame_info)(bound, vertices, targets)

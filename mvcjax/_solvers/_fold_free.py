@@ -16,7 +16,7 @@ from ._base import (
     SolveInfo,
     check_count,
     check_tolerance,
-    honest,
+    converged_and_finite,
     python_scalar,
 )
 from ._least_squares import ScaledProblem, default_tol
@@ -387,5 +387,5 @@ class FoldFree(AbstractSolver):
             has_aux=True)
         vertices = problem.unscaled(y)
         value = problem.energy_at(y)
-        return vertices, SolveInfo(converged=honest(converged > 0, vertices, value),
+        return vertices, SolveInfo(converged=converged_and_finite(converged > 0, vertices, value),
                                    iterations=steps.astype(jnp.int32), energy=value)

@@ -12,7 +12,7 @@ from jaxtyping import Array, Complex, Float, Int
 from .._energy import NORMAL_WEIGHT, Energy, total_energy
 from .._factor import _local_row_weights, _local_rows
 from .._stencils import Stencil, apply_stencils, apply_stencils_transpose, length_scale
-from ._base import SolveInfo, honest
+from ._base import SolveInfo, converged_and_finite
 
 _JACOBIAN_LIMIT_BYTES = 2**30
 
@@ -44,13 +44,13 @@ class ScaledProblem(eqx.Module):
 
     The unknowns `y` are coordinate-major, `(2, n)`, the layout of the factor's products
     (`AbstractFactor.solve_normal` preconditions the solvers' linear solves). The
-    residuals are those of `mvcjax.residuals` divided by the scale, in another order and
+    residuals are those of `mvcjax.advanced.residuals` divided by the scale, in another order and
     in two gathers of points as complex numbers: the Laplacian, edge and handle rows
     (three-point stencils, each turned to its rest length: zero for a handle, which
     only moves by its target), then the mean value rows. Every optimistix step
     linearises them (its line search and trust regions use the Jacobian) and jaxopt's
     also transposes them, so the fewer gathers the better (four, one per term as
-    `mvcjax.residuals` has, cost half as much again); the structured descents use the
+    `mvcjax.advanced.residuals` has, cost half as much again); the structured descents use the
     stencils directly (`stencils`, `stencils_transpose`).
 
     Attributes:
@@ -141,7 +141,7 @@ class ScaledProblem(eqx.Module):
         return jnp.stack([jnp.real(r), jnp.imag(r)])
 
     def energy_at(self, y: Float[Array, "2 n"]) -> Float[Array, ""]:
-        """The energy (6) at `y`, by `mvcjax.total_energy` (what solvers report)."""
+        """The energy (6) at `y`, by `mvcjax.advanced.total_energy` (what solvers report)."""
         return total_energy(self.energy, self.unscaled(y), self.targets)
 
     def energy_of_columns(self, columns: Float[Array, "2 n"]) -> Float[Array, ""]:
@@ -156,7 +156,7 @@ class ScaledProblem(eqx.Module):
         vertices = self.unscaled(y)
         energy = self.energy_at(y)
         return vertices, SolveInfo(
-            converged=honest(jnp.asarray(converged), vertices, energy),
+            converged=converged_and_finite(jnp.asarray(converged), vertices, energy),
             iterations=jnp.asarray(iterations, jnp.int32),
             energy=energy,
         )

@@ -86,9 +86,9 @@ def test_frames_into_a_donated_result_reuse_its_memory(horse_rig):
     assert again.unsafe_buffer_pointer() == where  # the result lives in out's memory
     np.testing.assert_array_equal(again, mvcjax.deform_frames(horse_rig, second, chunk=4))
     # New numbers, same program.
-    compiled = mvcjax._frames._deform_into._cache_size()
+    compiled = mvcjax._animation._deform_into._cache_size()
     mvcjax.deform_frames(horse_rig, first, chunk=4, out=again)
-    assert mvcjax._frames._deform_into._cache_size() == compiled
+    assert mvcjax._animation._deform_into._cache_size() == compiled
 
 
 def test_bad_out_is_explained(horse_rig):
