@@ -30,9 +30,9 @@ def allocator_rows(choice: str, measure, script: str, argv: list[str],
 
     By default glibc maps every block over 32 MiB afresh (and, from threads other than
     the main one, every block over 64 MiB) and unmaps it when freed, so each call of a
-    batched program pays the kernel's page faults for its whole result again: about 13
-    ms for the 48 MB of 1024 frames at 6k shape vertices. A loop of single frames reuses
-    its small blocks. `GLIBC_TUNABLES` is read when a process starts, so the
+    batched program pays the kernel's page faults for its whole result again, a cost
+    that grows with the result and dominates large batches. A loop of single frames
+    reuses its small blocks. `GLIBC_TUNABLES` is read when a process starts, so the
     "keep_freed" rows come from this script run again with it set (`child_args` added
     to its arguments `argv`, less `--json` and `--allocator`), unless this process
     already runs with it.

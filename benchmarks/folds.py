@@ -41,15 +41,15 @@ The solvers:
 - `FoldFree()` (where mvcjax has it);
 - `full`: the same energy solved on the shape mesh itself (`control=FullSolve()`, same
   shape spacing and bone samples: the same shape mesh, checked) by `GaussNewton()` (it
-  converges in tens of steps; `FixedG(anderson=5, iterations=2000, stop_early=True)` took
-  seconds a frame and stopped short); its energy is on another mesh, reported but not
+  converges in tens of steps; `FixedG(anderson=5, iterations=2000, stop_early=True)` is
+  far slower there and stops short); its energy is on another mesh, reported but not
   compared with the control mesh's;
 - `arap`: libigl's ARAP on the rig's shape mesh with the same pinned vertices and
   targets, `--arap-iterations` local-global steps (100 by default) from the full rig's
   default start (`full.start(targets)`); its energy is the full mesh's energy (6) at its
   result.
 
-The criterion (issue "Raise an arm without turning it inside out"), recorded per pose:
+The criterion (raise an arm without turning it inside out), recorded per pose:
 where any unconstrained solver reaches a pose with no flipped shape triangle, the
 default must reach one too (at most 2 flipped) with an energy within 2% of the lowest
 the unconstrained solvers found (`default_ok`). And FoldFree's time per frame against
@@ -92,8 +92,8 @@ LABELS = {
 }
 QUICK_SOLVERS = ("default", "paper", "gauss_newton", "fold_free", "arap")
 # Timed as users call them, `rig.deform(targets, ...)`, in a program of their own; the
-# others (milliseconds a frame) are timed with `return_info=True`, which adds the info's
-# energy, fold count and handle miss (about 0.1 ms on the character): one compilation
+# others (slower solvers) are timed with `return_info=True`, which adds the info's
+# energy, fold count and handle miss (little against their solve): one compilation
 # less each. `--quick` times every solver with its info.
 TIMED_PLAIN = ("default", "paper")
 GLYPHS = "HKLTEFNMAR"
@@ -141,8 +141,8 @@ class Pose:
 @dataclasses.dataclass
 class Family:
     """One rig and the poses solved on it. `make()` returns `(shape, handles, options)`
-    for `Rig.build` (`options` sets `shape_spacing` and perhaps `control_spacing` and
-    `margin`)."""
+    for `Rig.build` (`options` sets `shape_spacing` and perhaps `control`, a
+    `PaperControl(spacing, margin)`)."""
 
     key: str
     make: Callable
@@ -337,11 +337,11 @@ def measure_family(family: Family, names, dtype, repeats: int, igl, arap_iterati
 
     full = arap = None
     if "full" in names or "arap" in names:
-        full_options = {k: v for k, v in options.items() if k in ("shape_spacing",
-                                                                  "control_spacing")}
+        # The same shape mesh: the same spacing, and bones pinned at the same points.
+        spacing = getattr(options.get("control"), "spacing", None)
         t0 = time.perf_counter()
-        full = mvcjax.Rig.build(shape, handles, control=mvcjax.FullSolve(), dtype=dtype,
-                                **full_options)
+        full = mvcjax.Rig.build(shape, handles, control=mvcjax.FullSolve(spacing=spacing),
+                                dtype=dtype, shape_spacing=options.get("shape_spacing"))
         jax.block_until_ready(full)
         full_build_s = time.perf_counter() - t0
         same = (np.array_equal(np.asarray(full.shape_mesh.faces), np.asarray(rig.shape_mesh.faces))

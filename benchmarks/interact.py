@@ -18,7 +18,7 @@ with the update's drawing. Then a second drag pulls the back's handle down throu
 legs in `--moves` steps, which folds them: the median update over the moves where
 something is folded (the overlay and the hint drawn) and the median number folded. With both
 `show_folds` measured (the default), the two sessions take turns event by event, so
-that on a shared machine the load falls on both alike. The issue's target, at least 30
+that on a shared machine the load falls on both alike. The target, at least 30
 updates a second at 6k vertices, is printed and recorded, never asserted.
 
     python benchmarks/interact.py                     # 6k vertices, 200 moves

@@ -50,8 +50,8 @@ QUICK_VERTICES = [6000]
 QUICK_SIZES = [256, 512]
 PEER_SIZES = [512]
 QUICK_PEER_SIZES = [256]
-# In quick mode the peers draw a 1.5k-vertex mesh: scikit-image's estimate takes about a
-# millisecond per triangle, and its warp loops over the triangles in Python.
+# In quick mode the peers draw a 1.5k-vertex mesh: scikit-image's estimate fits a
+# transform per triangle, and its warp loops over the triangles in Python.
 QUICK_PEER_VERTICES = 1500
 EXPORT_FRAMES, QUICK_EXPORT_FRAMES = 200, 50
 EXPORT_SIZE = 256

@@ -261,7 +261,9 @@ def spacing_asking_for_millions():
 
 @case("meshing")
 def margin_1e_9():
-    return check_rig(star_rig(margin=1e-9))
+    import mvcjax
+
+    return check_rig(star_rig(control=mvcjax.PaperControl(margin=1e-9)))
 
 
 @case("polygons", quick=True)
@@ -455,7 +457,9 @@ def control_an_int():
 
 @case("arguments")
 def control_faces_out_of_range():
-    star_rig(control=(star(), _np().array([[0, 1, 99]])))
+    import mvcjax
+
+    star_rig(control=mvcjax.GivenControl(star(), _np().array([[0, 1, 99]])))
     raise Wrong("accepted faces out of range")
 
 

@@ -149,7 +149,7 @@ def format_table(result) -> str:
 
 
 def targets_met(result) -> dict:
-    """The issue's three targets, measured on this model."""
+    """The three targets of the module docstring, measured on this model."""
     rows = {r["solver"]: r for r in result["rows"]}
     fixed = rows["fixed_g"]
     optimistix = [rows[n] for n in ("gauss_newton", "dogleg", "levenberg_marquardt")]

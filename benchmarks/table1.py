@@ -89,8 +89,8 @@ def measure(name, shape, handles, drag, options, repeats, igl, figures):
     import mvcjax
 
     ours, preprocess = _built(lambda: mvcjax.Rig.build(shape, handles, **options))
-    bary = mvcjax.Rig.build(shape, handles, skinning="barycentric", **options)
-    paper = mvcjax.Rig.build(shape, handles, skinning="mvc", **options)
+    bary = mvcjax.Rig.build(shape, handles, skinning=mvcjax.BarycentricSkinning(), **options)
+    paper = mvcjax.Rig.build(shape, handles, skinning=mvcjax.MVCSkinning(), **options)
     full_options = {k: v for k, v in options.items() if k in ("shape_spacing", "dtype")}
     full, full_preprocess = _built(
         lambda: mvcjax.Rig.build(shape, handles, control=mvcjax.FullSolve(), **full_options))

@@ -32,7 +32,7 @@ process).
 
 Compilation happens once, outside the timed region (reported apart); every timed call
 blocks until ready; times are medians of calls made in turns, so that the machine's
-load weighs on both sides of a ratio alike. The issue's targets are printed and
+load weighs on both sides of a ratio alike. The targets are printed and
 recorded with whether they were met, never asserted.
 
     python benchmarks/throughput.py                       # 6k, 20k, 64k, 100k; 1024 frames
@@ -92,8 +92,9 @@ def bandwidth_gb_s(repeats: int) -> dict:
 def _rig(shape, handles, target: int, skinning: str):
     import mvcjax
 
+    method = {"blended": mvcjax.BlendedMVCSkinning(), "mvc": mvcjax.MVCSkinning()}[skinning]
     return mvcjax.Rig.build(shape, handles, shape_spacing=spacing_for(shape, target),
-                            skinning=skinning)
+                            skinning=method)
 
 
 def _targets(rig, count: int, seed: int = 0):

@@ -42,8 +42,8 @@ def _solve_chunked(rig: Rig, targets, solver: AbstractSolver, chunk: int):
 
 def _deform_chunked(rig: Rig, targets, solver: AbstractSolver, chunk: int):
     # The skinning maps over all frames at once (its rule takes them a few at a time),
-    # writing the result in place: skinning inside each chunk copied every chunk's
-    # result once more (10% of 16384 frames at 6k shape vertices).
+    # writing the result in place: skinning inside each chunk would copy every chunk's
+    # result once more.
     control = _solve_chunked(rig, targets, solver, chunk)
     return jax.vmap(lambda v: rig.skinning(v, rig.frame))(control)
 
@@ -124,8 +124,8 @@ def deform_frames(
         out: optional, the result of an earlier call with as many frames, whose memory
             this call reuses: it is donated, and deleted (`out = deform_frames(rig,
             targets, out=out)` in a loop). Large results otherwise pay the kernel's page
-            faults on fresh memory at every call: reusing 1024 frames' at 6k shape
-            vertices (48 MB) ran 1.6 times as fast, at 20k 2 times. One device only.
+            faults on fresh memory at every call, which dominate for large results
+            (`benchmarks/frames.py` measures both). One device only.
         devices: the devices to shard the frames over (default: one, the default device;
             `jax.devices()` for all). Frames are padded to a multiple of their count.
 

@@ -97,7 +97,16 @@ class PaperControl(AbstractControl):
 class FullSolve(AbstractControl):
     """The shape mesh as its own control mesh (the paper's "full solve", after Weng et
     al.): its boundary loops are `V_CP`, its interior vertices `V_CG`, every interior
-    edge is in `H`, and the skinning is the identity. Exact, and tens of times slower."""
+    edge is in `H`, and the skinning is the identity. Exact, and far slower.
+
+    Attributes:
+        spacing: how far apart a bone's pinned points are, in the shape's units
+            (default: `PaperControl`'s default spacing, so that a full solve pins the
+            same points as the default rig; give the `PaperControl`'s spacing to match
+            another).
+    """
+
+    spacing: float | int | None = eqx.field(default=None, static=True)
 
     def build(self, local, shape_vertices, shape_faces, shape_pinned, pinned, spacing, margin,
               frame):
@@ -160,24 +169,21 @@ class GivenControl(AbstractControl):
         return ControlParts(vertices, faces, loops, inner, at)
 
 
-def as_control(control, spacing=None, margin=None) -> AbstractControl:
-    """The control-mesh option from `Rig.build`'s arguments: an `AbstractControl`, or
-    the older spellings (`None`, `"shape"`, a `(vertices, faces)` pair with
-    `control_spacing` and `margin` beside it)."""
-    if control is None:
-        return PaperControl(spacing, margin)
+def as_control(control) -> AbstractControl:
+    """The control-mesh option of `Rig.build`: an `AbstractControl`, or a TypeError that
+    names the object to write (for `"shape"` or a `(vertices, faces)` pair too)."""
     if isinstance(control, AbstractControl):
-        if isinstance(control, PaperControl) and (spacing is not None or margin is not None):
-            raise ValueError(
-                "control_spacing and margin are given twice: set them in "
-                "mvcjax.PaperControl(spacing=..., margin=...) only."
-            )
         return control
-    if isinstance(control, str) and control == "shape":
-        return FullSolve()
-    if isinstance(control, (tuple, list)) and len(control) == 2:
-        return GivenControl(*control)
+    fix = {"shape": "mvcjax.FullSolve()", "paper": "mvcjax.PaperControl()"}.get(
+        control if isinstance(control, str) else None)
+    if control is None:
+        fix = "mvcjax.PaperControl() (the default; leave control out)"
+    elif isinstance(control, (tuple, list)) and len(control) == 2:
+        fix = "mvcjax.GivenControl(vertices, faces)"
+    elif isinstance(control, type) and issubclass(control, AbstractControl):
+        fix = f"mvcjax.{control.__name__}()"
     raise TypeError(
-        f"control must be mvcjax.PaperControl(), mvcjax.FullSolve() or "
-        f"mvcjax.GivenControl(vertices, faces), got {control!r}."
+        f"control must be a control-mesh object, mvcjax.PaperControl(spacing=..., margin=...), "
+        f"mvcjax.FullSolve() or mvcjax.GivenControl(vertices, faces), got {control!r}"
+        + (f"; write {fix}." if fix else ".")
     )

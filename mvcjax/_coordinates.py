@@ -56,7 +56,7 @@ def mean_value_coordinates(
 
     with np.errstate(divide="ignore", invalid="ignore"):
         # tan(alpha / 2) = det / (r r' + d) = (r r' - d) / det: the first cancels where
-        # the angle nears pi (a point close to a long edge of a thin triangle gave 0 / 0),
+        # the angle nears pi (a point close to a long edge of a thin triangle gives 0 / 0),
         # the second where it nears 0; take the one whose denominator does not cancel.
         rr = r * r_next
         tan_half = np.where(dot >= 0, det / (rr + dot), (rr - dot) / det)

@@ -46,11 +46,11 @@ class Weights(eqx.Module):
     """Weights of the four terms of the energy (6), each multiplying a squared norm.
 
     The paper leaves all four at 1. The handle rows are then a handful among hundreds
-    of L, M and H rows, which pull the handles back: on the default horse rig, a hoof
-    dragged 60 units stops 0.97 units short at convergence (1.8 after the paper's 15
-    iterations). The miss falls about in proportion to the handle weight: 0.12 units at
-    10, 0.012 (0.003% of the diagonal) at 100, the default. Much larger weights only
-    worsen the conditioning of `G` in float32 for no visible gain.
+    of L, M and H rows, which pull the handles back: a dragged handle stops visibly
+    short of its target. The miss falls about in inverse proportion to the handle
+    weight; at 100, the default, it is negligible (`benchmarks/folds.py` reports it).
+    Much larger weights only worsen the conditioning of `G` in float32 for no visible
+    gain.
 
     Attributes:
         laplacian: weight of `|L V - delta(V)|^2` (boundary detail, the silhouette).

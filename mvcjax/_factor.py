@@ -126,8 +126,7 @@ class AbstractFactor(eqx.Module):
 
     Steps take and return the vertices coordinate-major, as the rows `V^T` of shape
     `(2, n)`: products then run as `(2, m) @ (m, n)`, which XLA's CPU backend does faster
-    than `(n, m) @ (m, 2)` (a fixed-G step on the horse's control mesh in float64: 13
-    microseconds against 31, measured by `benchmarks/solvers.py`).
+    than `(n, m) @ (m, 2)` (`benchmarks/solvers.py` measures the fixed-G step).
     """
 
     rows: eqx.AbstractVar[Int[Array, "m 3"]]
@@ -284,10 +283,10 @@ class DenseFactor(AbstractFactor):
     def step_frames(self, vertices, data):
         # Frames on the last axis, not vmapped: every gather moves rows of contiguous
         # frames, and the global step is one product for all of them, its result already
-        # in place (another layout costs a transpose every step: 30% slower on 256
-        # frames). The product is `N^{-1} (A^T W b)`, not `G b`: `A^T W b` is a cheap
-        # gather (`spread`), and `N^{-1}` is `n x n` where `G` is `n x m`, m near 2.3 n
-        # on the horse (a third fewer flops), 1.4 to 1.5 times faster on 256 frames.
+        # in place (another layout costs a transpose every step). The product is
+        # `N^{-1} (A^T W b)`, not `G b`: `A^T W b` is a cheap gather (`spread`), and
+        # `N^{-1}` is `n x n` where `G` is `n x m`, m near 2.3 n on the horse: fewer
+        # flops per frame.
         def local(coordinate):
             # One gather per stencil column: faster than one gather of all three
             # columns followed by a contraction.
@@ -379,7 +378,7 @@ class _HostSolve:
         _HOST_SOLVES[self.key] = self
         # The normal matrix is symmetric positive definite: a symmetric ordering, with
         # pivoting off so that SuperLU keeps it, gives a Cholesky-like fill; partial
-        # pivoting would break the symmetry and make large factors tens of times slower.
+        # pivoting would break the symmetry and make large factors far slower.
         self.lu = scipy.sparse.linalg.splu(
             normal, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
             options=dict(SymmetricMode=True),
@@ -540,20 +539,19 @@ class FactorBySize(AbstractFactorMethod):
         return method(energy)
 
 
-_FACTOR_NAMES = {"dense": DenseG, "sparse": SparseLU}
-
-
 def as_factor_method(factor) -> AbstractFactorMethod:
-    """The factor option of `Rig.build`: an `AbstractFactorMethod`, or the older
-    spellings `"dense"`, `"sparse"` and `None` (by size)."""
+    """The factor option of `Rig.build`: an `AbstractFactorMethod`, or a TypeError that
+    names the object to write (for a name such as `"sparse"` too)."""
     if isinstance(factor, AbstractFactorMethod):
         return factor
+    fix = {"dense": "DenseG()", "sparse": "SparseLU()"}.get(
+        factor if isinstance(factor, str) else None)
     if factor is None:
-        return FactorBySize()
-    if isinstance(factor, str) and factor in _FACTOR_NAMES:
-        return _FACTOR_NAMES[factor]()
-    raise ValueError(
-        "factor must be one of mvcjax.advanced.DenseG(), mvcjax.advanced.SparseLU() or "
-        "mvcjax.advanced.FactorBySize() "
-        f"(or the names 'dense', 'sparse', None), got {factor!r}."
+        fix = "FactorBySize() (the default; leave factor out)"
+    elif isinstance(factor, type) and issubclass(factor, AbstractFactorMethod):
+        fix = f"{factor.__name__}()"
+    raise TypeError(
+        "factor must be a factor object, mvcjax.advanced.DenseG(), "
+        f"mvcjax.advanced.SparseLU() or mvcjax.advanced.FactorBySize(), got {factor!r}"
+        + (f"; write mvcjax.advanced.{fix}." if fix else ".")
     )

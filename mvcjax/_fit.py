@@ -255,7 +255,7 @@ def _with_explicit_jacobian(f, y):
     derivative is a product with the Jacobian, computed once (`len(y)` tangents of one
     linearisation). Optimistix linearises the residuals, materialises the Jacobian and
     transposes the linearisation for the gradient: through the renderer that compiled
-    its reverse pass as well, and took twice as long to compile; through this, the
+    its reverse pass as well, which lengthened compilation; through this, the
     transpose is a matrix product."""
 
     @jax.custom_jvp
@@ -291,16 +291,18 @@ def _stage(rig, renderer, solver, weights, method, steps: int, start, target_pic
         r = _residuals(rig, renderer, solver, weights, targets, target_picture, blur)
         return r.astype(dtype)
 
+    count = target_picture[..., 0].size * jnp.sum(weights)
+
     def fn(offsets, _):
-        return _with_explicit_jacobian(residuals, offsets), None
+        # The loss rides along as the residuals' aux, so the history costs no render.
+        r = _with_explicit_jacobian(residuals, offsets)
+        return r, jnp.sum(r**2) / count
 
     y0 = jnp.zeros(start.shape, dtype)
     options, tags = {}, frozenset()
     f_struct, aux_struct = jax.eval_shape(fn, y0, None)
     state = method.init(fn, y0, None, options, f_struct, aux_struct, tags)
-    nan = jnp.asarray(jnp.nan, dtype)
-    count = target_picture[..., 0].size * jnp.sum(weights)
-    history = jnp.full(steps, nan)
+    history = jnp.full(steps, jnp.asarray(jnp.nan, dtype))
 
     # The solver's state holds the Jacobian's jaxpr, not an array: the loop carries the
     # arrays, and the rest (the same every step) is put back around them.
@@ -313,15 +315,16 @@ def _stage(rig, renderer, solver, weights, method, steps: int, start, target_pic
 
     def advance(carry):
         step, y, dynamic, history = carry
-        y, state, _ = method.step(fn, y, None, options, eqx.combine(dynamic, static), tags)
-        # The loss at the accepted point, from the residuals a step evaluated there (the
-        # first step evaluates the start, and accepts it): the Gauss-Newton family's
-        # state keeps them, so no render is spent on the history.
-        loss = jnp.sum(state.f_info.residual**2) / count
-        return step + 1, y, eqx.filter(state, eqx.is_array), history.at[step].set(loss)
+        y, state, loss = method.step(fn, y, None, options, eqx.combine(dynamic, static), tags)
+        # A step returns the aux of the point it started from, the one the step before
+        # accepted (the first step evaluates the start and accepts it): the history's
+        # previous entry. The last is filled after the loop.
+        return (step + 1, y, eqx.filter(state, eqx.is_array),
+                history.at[jnp.maximum(step - 1, 0)].set(loss))
 
     step, y, dynamic, history = jax.lax.while_loop(
         going, advance, (jnp.asarray(0), y0, dynamic, history))
+    history = history.at[jnp.maximum(step - 1, 0)].set(fn(y, None)[1])
     state = eqx.combine(dynamic, static)
     done, result = method.terminate(fn, y, None, options, state, tags)
     converged = done & (result == optx.RESULTS.successful)

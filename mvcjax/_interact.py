@@ -4,14 +4,14 @@ A `Posing` owns one matplotlib axes. Its solve, skin and (with a picture) render
 compiled program, called with new targets on every mouse move; shapes never change, so
 it compiles once. The figure is updated by blitting: the static parts (axes, rest
 outline) are drawn once and kept as a bitmap, and each move restores that bitmap, draws
-only the moving artists and copies the axes' box to the screen. A full redraw of a
-figure costs tens of milliseconds; a blit a few.
+only the moving artists and copies the axes' box to the screen. A full redraw draws
+every artist of the figure; a blit, only the moving ones.
 
 Folds are shown as they happen: the program also marks the shape triangles whose
 orientation left their rest orientation, and those are drawn red over the shape, with a
 hint that counts them. The hint is drawn as a path (glyph outlines, kept per digit):
-matplotlib's text draws each glyph anew on every draw, milliseconds that a blit would pay
-on every update.
+matplotlib's text draws each glyph anew on every draw, a cost that a blit would pay on
+every update.
 
 Any interactive matplotlib backend works: a desktop window (`QtAgg`, `TkAgg`, `MacOSX`)
 or Jupyter through ipympl (`%matplotlib widget`). Canvases that cannot blit (vector
@@ -359,8 +359,8 @@ class Posing:
         (self._bone_line,) = ax.plot([], [], "-", color="tab:red", linewidth=2.5, zorder=4,
                                      **animated)
         (self._handles,) = ax.plot([], [], zorder=5, **_HANDLE_STYLE, **animated)
-        # Hints only: a text that changes on every update (a rate, say) costs milliseconds
-        # of glyphs each time.
+        # Hints only: a text that changes on every update (a rate, say) draws its glyphs
+        # anew each time.
         self._status = ax.text(0.01, 0.01, "", transform=ax.transAxes, fontsize=8,
                                color="0.3", zorder=6, **animated)
         self._fold_patch = self._fold_hint = None
@@ -521,7 +521,8 @@ def _pixels(ax) -> tuple[int, int]:
 
 @functools.cache
 def _picture_class():
-    # Made on first use: importing matplotlib's image module costs `import mvcjax` 20%.
+    # Made on first use: importing matplotlib's image module would slow `import mvcjax`
+    # for sessions that never draw.
     from matplotlib.image import AxesImage
 
     class Picture(AxesImage):
@@ -552,7 +553,7 @@ def _picture_class():
 
 def _can_blit(canvas) -> bool:
     # Agg-based canvases can. ipympl's (webagg's) reports supports_blit = False, because
-    # matplotlib's own widgets met problems there (matplotlib#19762), yet it has the Agg
+    # matplotlib's own widgets met problems there, yet it has the Agg
     # buffer's copy and restore, and its blit sends the changed pixels to the browser.
     return hasattr(canvas, "copy_from_bbox") and hasattr(canvas, "restore_region")
 

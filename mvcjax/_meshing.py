@@ -188,8 +188,8 @@ def _gap_cuts(shape: Shape, margin: float, step: float | None = None):
                 f"{perimeter / step:,.0f} times. Use a margin of at least "
                 f"{4 * perimeter / MAX_SAMPLES:.2g} times the shape's diagonal."
             )
-    # Refining past this many samples would take minutes; gaps narrower than the samples
-    # are still cut, only more coarsely.
+    # Refining past this many samples would make the gap search very slow; gaps narrower
+    # than the samples are still cut, only more coarsely.
     step = max(step, perimeter / MAX_SAMPLES)
     samples, ring_id, arc, length = [], [], [], []
     for r, ring in enumerate(shape.rings):
@@ -201,7 +201,7 @@ def _gap_cuts(shape: Shape, margin: float, step: float | None = None):
         length.append(np.full(len(pts), seg.sum()))
     pts, ring_id, arc, length = map(np.concatenate, (samples, ring_id, arc, length))
     # Joggled: samples along parallel sides are cocircular by the thousand, on which
-    # Qhull's exact merging takes minutes (17 s for 20k samples of a thin strip).
+    # Qhull's exact merging is very slow.
     vor = Voronoi(pts, qhull_options="Qbb Qc QJ")
     a, b = vor.ridge_points[:, 0], vor.ridge_points[:, 1]
     along = np.abs(arc[a] - arc[b])
@@ -299,8 +299,8 @@ def control_polygon(shape: Shape, margin: float, spacing: float) -> list[np.ndar
     if not control.is_valid or not control.contains(poly):
         raise ValueError(
             "Could not build a control polygon that encloses the shape without crossing "
-            f"itself (margin={margin:.4g}, control_spacing={spacing:.4g}); try a smaller "
-            "margin or control_spacing, or pass a control mesh of your own."
+            f"itself (margin={margin:.4g}, spacing={spacing:.4g}); try a smaller "
+            "PaperControl(margin=..., spacing=...), or pass a control mesh of your own."
         )
     return loops
 
@@ -342,6 +342,6 @@ def triangulate_control(
     if len(out["vertices"]) != len(vertices):
         raise ValueError(
             "The control polygon crosses itself or passes through an inner control vertex; "
-            "try a smaller control_spacing or margin."
+            "try a smaller PaperControl(spacing=...) or margin."
         )
     return vertices, _counter_clockwise(vertices, np.asarray(out["triangles"], np.int64))

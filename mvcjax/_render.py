@@ -274,7 +274,7 @@ class Renderer(JittableModule):
                 largest move; moves under a thousandth of the mesh's size count as
                 none), so that a dragged part passes over the rest of the shape.
             antialias: smooth (and differentiable) boundary edges; False draws hard edges
-                at about half the cost.
+                for less work (no coverage to compute along the boundary).
             alpha: where the drawn shape's edge comes from. `"mesh"` (default): the mesh
                 is the silhouette (as `Shape.from_image` traced it), antialiased by its
                 coverage of each pixel; the picture is drawn opaque, its colours carried
@@ -441,7 +441,7 @@ def _grown(window, vertices, shape: tuple[int, int]):
 @eqx.filter_jit
 def _draw_batch(renderer: Renderer, frames):
     # One frame after another inside one program: vmapped, XLA fuses the batch's shading
-    # into larger loops that redo table lookups, and it ran at half the speed of a loop.
+    # into larger loops that redo table lookups, which is slower than a loop.
     return jax.lax.map(lambda v: _draw(renderer, v, renderer.window), frames)
 
 
@@ -528,8 +528,8 @@ def _tiling(vertices, faces, boundary, window, rows, cols, antialias) -> tuple[i
     for tile in _TILES:
         _, _, across = _tiles(tri, fringe, rows, cols, tile)
         counts[tile] = int(np.sum(np.prod(np.asarray(across, np.int64), axis=1)))
-    # A tile costs about as much as a dozen candidate pixels (its triangle's row, the
-    # slot's arithmetic), measured on the horse at 256 to 1024 pixels.
+    # A tile is charged as a dozen candidate pixels (its triangle's row, the slot's
+    # arithmetic), about its cost against a pixel's.
     tile = min(_TILES, key=lambda t: counts[t] * (t * t + 12))
     return tile, counts[tile]
 

@@ -14,13 +14,13 @@ from . import _coordinates as coords, _meshing as meshing, _topology as topology
 from ._checks import as_array, as_points, check_solver, finite_when_traced, kind_of
 from ._control import PaperControl, as_control
 from ._energy import Energy, Weights, check_weights, total_energy
-from ._factor import AbstractFactor, as_factor_method
+from ._factor import AbstractFactor, FactorBySize, as_factor_method
 from ._folds import inverted_count
 from ._handles import Handles, check_handles, make_handles, pin
 from ._local_frame import Frame, bounding_frame, check_representable, frame_array, points_to_local
 from ._module import JittableModule
 from ._shape import Shape
-from ._skinning import BarycentricSkinning, Skinning, as_skinning
+from ._skinning import BarycentricSkinning, BlendedMVCSkinning, Skinning, as_skinning
 from ._solvers import DEFAULT_SOLVER, AbstractSolver
 from ._solvers._base import SkinnedMesh
 from ._start import STARTS, start_vertices, turn_weights
@@ -115,8 +115,8 @@ def _spacings(local: Shape, scale: float, shape_spacing, control_spacing, margin
     shape's size and, for thin shapes, its thickness."""
     unit = np.sqrt(local.area)
     given = [_length(v, n) for v, n in [(shape_spacing, "shape_spacing"),
-                                         (control_spacing, "control_spacing"),
-                                         (margin, "margin")]]
+                                         (control_spacing, "PaperControl(spacing=...)"),
+                                         (margin, "PaperControl(margin=...)")]]
     shape_spacing, control_spacing, margin = (None if v is None else v / scale for v in given)
     if control_spacing is None:
         control_spacing = unit / 8.0
@@ -180,7 +180,7 @@ def _check_rig(shape_vertices, control_vertices, control_faces, skin_index, skin
         raise ValueError(
             "The rig failed its build check (" + "; ".join(problems) + "). This is a bug in "
             "mvcjax: please report it with the shape and handles. Meanwhile another "
-            "shape_spacing, control_spacing or skinning may avoid it."
+            "shape_spacing, PaperControl(spacing=...) or skinning may avoid it."
         )
 
 
@@ -225,12 +225,10 @@ class Rig(JittableModule):
         handles: Any,
         *,
         shape_spacing: Any = None,
-        control_spacing: Any = None,
-        margin: Any = None,
         weights: Any = None,
-        control: Any = None,
-        skinning: Any = "blended",
-        factor: Any = None,
+        control: Any = PaperControl(),
+        skinning: Any = BlendedMVCSkinning(),
+        factor: Any = FactorBySize(),
         dtype=None,
         max_triangles: int = 400_000,
     ) -> Rig:
@@ -248,25 +246,22 @@ class Rig(JittableModule):
             shape_spacing: edge length of the shape mesh (default: `sqrt(area) / 40`,
                 about 3k vertices on a compact shape, or half the shape's thickness,
                 twice its area over its perimeter, if that is smaller).
-            control_spacing: the paper's control mesh's spacing (`PaperControl`'s, which
-                says its default); it also sets how far apart a bone's pinned points are.
-            margin: the paper's control mesh's margin (`PaperControl`'s).
             weights: the term weights (default `Weights()`).
-            control: how the control mesh is made: `mvcjax.PaperControl()` (default, the
-                paper's), `mvcjax.FullSolve()` (the shape mesh itself) or
-                `mvcjax.GivenControl(vertices, faces)` (a mesh of your own); the older
-                spellings `None`, `"shape"` and `(vertices, faces)` work too.
+            control: how the control mesh is made: `mvcjax.PaperControl(spacing, margin)`
+                (default, the paper's; its spacing also sets how far apart a bone's
+                pinned points are), `mvcjax.FullSolve()` (the shape mesh itself) or
+                `mvcjax.GivenControl(vertices, faces)` (a mesh of your own).
             skinning: how the shape mesh follows the control mesh:
                 `mvcjax.BlendedMVCSkinning()` (default: continuous, and the smoothest),
                 `mvcjax.MVCSkinning()` (the paper's eq. 1, which jumps across control
                 edges) or `mvcjax.BarycentricSkinning()` (the paper's "control mesh
-                only"); the short names `"blended"`, `"mvc"` and `"barycentric"` work too.
+                only").
                 Ignored with `FullSolve()` (the shape mesh carries itself).
             factor: the global step of the fixed-G iteration: `mvcjax.advanced.DenseG()` (the
                 paper's `G`, recomputed inside `jit` when weights change),
                 `mvcjax.advanced.SparseLU()` (for meshes of thousands of vertices) or
-                `mvcjax.advanced.FactorBySize()` (default: dense up to 1000 control vertices); the
-                older names `"dense"`, `"sparse"` and `None` work too.
+                `mvcjax.advanced.FactorBySize()` (default: dense up to 1000 control
+                vertices).
             dtype: `jnp.float32` or `jnp.float64` (default: JAX's default float; float64
                 needs `jax_enable_x64`).
             max_triangles: refuse, before meshing, a shape mesh estimated to have more
@@ -285,7 +280,7 @@ class Rig(JittableModule):
         if isinstance(max_triangles, bool) or not isinstance(max_triangles, (int, np.integer)) \
                 or max_triangles < 1:
             raise ValueError(f"max_triangles must be a positive integer, got {max_triangles!r}.")
-        control = as_control(control, control_spacing, margin)
+        control = as_control(control)
         factor = as_factor_method(factor)
 
         centre, scale = bounding_frame(shape.outer)
@@ -294,8 +289,8 @@ class Rig(JittableModule):
         local = Shape.from_polygon(points_to_local(shape.outer, frame),
                                    [points_to_local(h, frame) for h in shape.holes])
         local_points = points_to_local(points, frame)
-        if isinstance(control, PaperControl):
-            control_spacing, margin = control.spacing, control.margin
+        control_spacing = getattr(control, "spacing", None)
+        margin = control.margin if isinstance(control, PaperControl) else None
         shape_spacing, control_spacing, margin = _spacings(
             local, scale, shape_spacing, control_spacing, margin
         )
@@ -601,7 +596,7 @@ def _compiled_when_eager(fn):
     outside any transformation, inline inside one (the caller's `jit` compiles it).
 
     Eager calls would otherwise run op by op, compiling every loop afresh, and keep
-    those programs: about 300 memory maps per rig, until a long session ran out. As an
+    those programs, each holding memory maps, until a long session runs out. As an
     argument, never closed over, a new rig of the same sizes reuses the program. Inside
     a transformation a nested `jit` is no faster, and jaxopt's implicit gradients leak a
     tracer through one.

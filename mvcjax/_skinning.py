@@ -104,21 +104,20 @@ class BlendedMVCSkinning(AbstractSkinning):
         return _merge_duplicates(np.concatenate(index, axis=1), np.concatenate(weight, axis=1))
 
 
-SKINNINGS = {"blended": BlendedMVCSkinning, "mvc": MVCSkinning, "barycentric": BarycentricSkinning}
-
-
 def as_skinning(skinning) -> AbstractSkinning:
-    """A skinning method from an object or its short name ("blended", "mvc", "barycentric")."""
+    """The skinning option of `Rig.build`: an `AbstractSkinning`, or a TypeError that
+    names the object to write (for a short name such as `"mvc"` too)."""
     if isinstance(skinning, AbstractSkinning):
         return skinning
+    names = {"blended": BlendedMVCSkinning, "mvc": MVCSkinning,
+             "barycentric": BarycentricSkinning}
+    kind = names.get(skinning) if isinstance(skinning, str) else None
     if isinstance(skinning, type) and issubclass(skinning, AbstractSkinning):
-        return skinning()
-    if isinstance(skinning, str) and skinning in SKINNINGS:
-        return SKINNINGS[skinning]()
-    raise ValueError(
-        f"skinning must be one of {tuple(SKINNINGS)} or an mvcjax skinning object "
-        f"(mvcjax.BlendedMVCSkinning(), mvcjax.MVCSkinning(), mvcjax.BarycentricSkinning()), "
-        f"got {skinning!r}."
+        kind = skinning
+    raise TypeError(
+        "skinning must be a skinning object, mvcjax.BlendedMVCSkinning(), "
+        f"mvcjax.MVCSkinning() or mvcjax.BarycentricSkinning(), got {skinning!r}"
+        + (f"; write mvcjax.{kind.__name__}()." if kind else ".")
     )
 
 
@@ -204,8 +203,8 @@ def pack_blocks(index: np.ndarray, weight: np.ndarray, block: int, max_width: in
     return block_index, block_weight
 
 
-# Rows per block of the many-frames skinning: 128 to 512 measured alike at 6k shape
-# vertices (`benchmarks/frames.py`).
+# Rows per block of the many-frames skinning: the time varies little over a wide range
+# around it (`benchmarks/frames.py` measures the many-frames path).
 BLOCK_ROWS = 256
 
 
@@ -218,7 +217,8 @@ def block_width_limit(row_width: int) -> int:
 
 def tile_rows(index: np.ndarray) -> int:
     """Rows per tile for these rows, 8 to 64: the fewest weights streamed plus gathers
-    made, a gather (one per tile and entry) counted as eight weights, as measured."""
+    made, a gather (one per tile and entry) counted as eight weights, about its cost
+    against a streamed weight on the CPU."""
     _, counts = np.unique(index, axis=0, return_counts=True)
     return min((8, 16, 32, 64), key=lambda tile: (-(-counts // tile)).sum() * (tile + 8))
 
@@ -284,8 +284,8 @@ class Skinning(JittableModule):
         `frame.to_world` (the control vertices then in the frame's local coordinates).
 
         Under `jax.vmap` the frame's map is applied as each block of frames is skinned:
-        a pass of its own over the result cost as much as the skinning at 20k shape
-        vertices."""
+        a pass of its own would read and write the whole result once more, about as
+        much memory traffic as the skinning itself."""
         return with_batching_rule(_skin_in, _skin_frames)(self, control_vertices, frame)
 
     def matrix(self, control_count: int) -> Float[Array, "n c"]:
@@ -304,8 +304,8 @@ def _skin(skinning: Skinning, control_vertices):
     x, y = materialise((control_vertices[:, 0][skinning.tile_indices],
                         control_vertices[:, 1][skinning.tile_indices]))
     w = skinning.tile_weights
-    # Unrolled over the entries: XLA compiles a reduction over the leading axis 2.5x
-    # slower.
+    # Unrolled over the entries: XLA compiles a reduction over the leading axis into
+    # slower code.
     rows = materialise(jnp.stack([
         sum(w[j] * x[j][:, None] for j in range(w.shape[0])).reshape(-1),
         sum(w[j] * y[j][:, None] for j in range(w.shape[0])).reshape(-1),
@@ -335,9 +335,10 @@ def _skin_blocks(skinning: Skinning, control_vertices: Float[Array, "f c 2"], fr
 
 def frames_per_product(shape_vertices: int) -> int:
     """Frames skinned by one batched product: 128, or fewer (a power of two, at least 8)
-    where 128 frames would pass `2**24` shape vertices in all (over 131k a frame). At
-    6k, 20k and 60k shape vertices, 128 frames at a time ran 1.1 to 1.3 times as fast as
-    16 (with freed memory reused; see the guide's "Memory for large batches")."""
+    where 128 frames would pass `2**24` shape vertices in all (over 131k a frame).
+    Larger groups spread each product's fixed cost over more frames
+    (`benchmarks/throughput.py` measures the batches; see the guide's "Memory for large
+    batches")."""
     return 1 << min(7, max(3, (2**24 // max(shape_vertices, 1)).bit_length() - 1))
 
 
@@ -347,8 +348,8 @@ def skin_frames_into(skinning: Skinning, control_vertices: Float[Array, "f c 2"]
     frames (`frames_per_product`) at a time.
 
     Given a donated `out`, the result takes its memory and nothing is filled first:
-    `jax.vmap` of the skinning loops into a new array filled with zeros (at 6k and 20k
-    shape vertices and 1024 frames, 1.1 times the time)."""
+    `jax.vmap` of the skinning loops into a new array filled with zeros, one more pass
+    over the whole result."""
     frames = control_vertices.shape[0]
     if skinning.block_weights.shape[0] == 0:  # rows too scattered for blocks
         skinned = jax.lax.map(lambda v: _skin_in(skinning, v, frame), control_vertices)
@@ -376,9 +377,7 @@ def _skin_frames(frames: int, in_batched, skinning: Skinning, control_vertices, 
     vertices, 12 nonzeros a row on average, 19 at most, against 45 columns a block; a
     dense `W` over all 160 wastes nine products in ten) and runs at matrix-product
     speed, where mapping the single frame's sparse skinning over frames gathers element
-    by element: 18 to 29 microseconds a frame at 6k shape vertices and 57 to 91 at 20k
-    for 1024 frames (`benchmarks/throughput.py`, memory reused or fresh), against 37 to
-    62 and 180 mapped (measured when this rule was written)."""
+    by element (`benchmarks/throughput.py` measures both)."""
     if not only_batched(in_batched, 1):
         return None
     if skinning.block_weights.shape[0] == 0:  # rows too scattered for blocks

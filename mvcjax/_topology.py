@@ -1,8 +1,8 @@
 """Topology of a triangle mesh, from its faces alone: edges, boundary loops, neighbours
 across edges and the star of every vertex.
 
-Everything is vectorised numpy (sorting integer keys), so that meshes of 100k vertices
-cost milliseconds; faces are `(f, 3)` vertex indices, counter-clockwise.
+Everything is vectorised numpy (sorting integer keys), so that large meshes cost
+little; faces are `(f, 3)` vertex indices, counter-clockwise.
 """
 
 from __future__ import annotations

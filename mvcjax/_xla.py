@@ -10,9 +10,9 @@ def materialise(tree):
     """`tree`, computed once into memory.
 
     XLA's CPU fusion would otherwise compute a gather inside each of its consumers: a
-    table lookup once per texel and channel (4x to 8x the work), or a skinning's sum
-    inside the gather that reorders it, where the sum no longer runs over contiguous
-    memory (4x slower at 100k vertices). It drops `optimization_barrier`s, but not a
+    table lookup once per texel and channel instead of once, or a skinning's sum inside
+    the gather that reorders it, where the sum no longer runs over contiguous memory.
+    It drops `optimization_barrier`s, but not a
     conditional whose predicate it cannot know at compile time: both branches return
     `tree` (the second `+ 0`, so that no pass can prove them the same), and the
     predicate (true unless the first number is not finite) depends on the frame's data,

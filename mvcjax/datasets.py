@@ -184,7 +184,7 @@ def stick() -> Shape:
     The end caps are half discs centred at x = +-100. The half width eases from 15 in
     the middle to 13.5 at the ends (a 10% taper, barely visible): the sides are then
     not straight lines, whose outward offset would be two long edges that the control
-    polygon keeps whole, however small `control_spacing` is.
+    polygon keeps whole, however small the control spacing is.
     """
     half = _STICK_LENGTH / 2
     x = np.linspace(-half, half, 31)
@@ -229,8 +229,9 @@ class Model:
         handles: `(h, 2)` default handle points (read-only), on or inside the shape.
         drag: `(h, 2)` offsets of the default pose (read-only): the targets are
             `rig.handle_positions + drag`.
-        options: keyword arguments for `Rig.build` (`shape_spacing`,
-            `control_spacing`, `margin`) that size the meshes like the paper's Table 1.
+        options: keyword arguments for `Rig.build` (`shape_spacing`, and `control`, a
+            `PaperControl(spacing, margin)`) that size the meshes like the paper's
+            Table 1.
     """
 
     name: str
@@ -241,7 +242,7 @@ class Model:
 
     def rig(self, **overrides) -> Rig:
         """`Rig.build(shape, handles, **options)`, any option replaced by `overrides`
-        (e.g. `dtype=jnp.float32`, `skinning="blended"`)."""
+        (e.g. `dtype=jnp.float32`, `skinning=mvcjax.MVCSkinning()`)."""
         # Imported here: loading the datasets should not pull in JAX, nor make a cycle
         # through the package's __init__, which imports this module first.
         from ._rig import Rig
@@ -255,15 +256,15 @@ MODEL_NAMES = ("character", "flower", "stick", "horse")
 # vertices; control polygon + inner vertices): character 532; 32 + 34 (here 533;
 # 37 + 33), flower 730; 44 + 76 (728; 59 + 66), stick 229; 24 + 19 (228; 28 + 12).
 # The totals match within 7%; the split cannot: the control polygon's chords are at
-# most `control_spacing` long while the inner vertices end up one to two spacings
+# most the control spacing long while the inner vertices end up one to two spacings
 # apart, so on limbs, stems and bars the polygon takes more of the vertices than the
 # paper's did (even a disc only reaches the paper's ratio of about 1 : 1).
 # The counts also rest on the control polygon keeping a long straight stretch of the
 # offset outline as one edge (the character's limbs, the flower's stem).
 _OPTIONS = {
-    "character": dict(shape_spacing=6.75, control_spacing=19.0, margin=12.0),
-    "flower": dict(shape_spacing=4.6, control_spacing=10.0, margin=6.5),
-    "stick": dict(shape_spacing=7.63, control_spacing=21.0, margin=14.0),
+    "character": dict(shape_spacing=6.75, spacing=19.0, margin=12.0),
+    "flower": dict(shape_spacing=4.6, spacing=10.0, margin=6.5),
+    "stick": dict(shape_spacing=7.63, spacing=21.0, margin=14.0),
     "horse": {},
 }
 
@@ -286,7 +287,12 @@ def model(name: str) -> Model:
     handles, drag = make_handles(), make_drag()
     handles.setflags(write=False)
     drag.setflags(write=False)
-    return Model(name, make_shape(), handles, drag, dict(_OPTIONS[name]))
+    from ._control import PaperControl
+
+    sizes = dict(_OPTIONS[name])
+    options = ({"shape_spacing": sizes.pop("shape_spacing"), "control": PaperControl(**sizes)}
+               if sizes else {})
+    return Model(name, make_shape(), handles, drag, options)
 
 
 # ---- the fold suite's shapes ---------------------------------------------------------
@@ -431,7 +437,7 @@ def snake(length: float = _SNAKE[0], width: float = _SNAKE[1], taper: float = 0.
     With `taper > 0` the half width eases from `width / 2` in the middle to `(1 - taper)`
     times that at the ends (as `stick()`'s, whose 10% is barely visible): the sides are
     then curves, not the two long straight edges that the default control polygon keeps
-    whole (one control edge a side, which cannot bend), however small `control_spacing`.
+    whole (one control edge a side, which cannot bend), however small the control spacing.
     """
     if not (np.isfinite(length) and np.isfinite(width) and 0 < width < length):
         raise ValueError(f"snake needs 0 < width < length, got length={length}, width={width}.")

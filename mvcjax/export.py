@@ -44,7 +44,7 @@ _IMAGE_FORMATS = {".png": "PNG", ".webp": "WEBP", ".jpg": "JPEG", ".jpeg": "JPEG
 
 # The GIF palette is computed from this many frames spread over the animation, and from
 # at most this many of their opaque pixels: enough for the colours of a deforming
-# picture, in a few milliseconds.
+# picture, and cheap to compute.
 _PALETTE_FRAMES = 8
 _PALETTE_PIXELS = 1 << 18
 
@@ -277,8 +277,8 @@ def write_animation(
     - `.webp`: lossy WebP (`quality`) with lossless alpha.
     - `.gif`: 256 colours, 1-bit transparency. One palette of up to 255 colours serves
       every frame: Pillow's fast octree on the opaque pixels of a few frames spread over
-      the animation (Pillow's default, a median cut of every frame, takes seconds for
-      200 frames of 256 x 256), each frame mapped to it without dithering (dithering
+      the animation (Pillow's default, a median cut of every frame, is slow on long
+      animations), each frame mapped to it without dithering (dithering
       noise crawls from frame to frame and makes the file larger); one more entry is the
       transparent one.
       Pixels with alpha below 1/2 become transparent; the others are composited onto
@@ -353,8 +353,8 @@ def _write_pillow(path, kind, items, fps, loop, quality, progress) -> None:
             bar.update()
         bar.set_postfix_str("encoding")
         if kind == "PNG":
-            # zlib level 1: about a third of the default level's time, files up to half
-            # as large again.
+            # zlib level 1: much faster than the default level, for somewhat larger
+            # files.
             options: dict[str, Any] = {"compress_level": 1, "default_image": False}
         else:
             options = {"quality": _quality(kind, quality)}
@@ -457,8 +457,8 @@ def _write_mp4(path, items, fps, quality, matte_rgb, progress) -> None:
         # JAX warns at every os.fork once it is imported, but the fork that starts ffmpeg
         # execs at once: no JAX thread is needed in the child.
         warnings.filterwarnings("ignore", r"os\.fork\(\) was called", RuntimeWarning)
-        # libx264's veryfast preset: half the time of its default (medium) on 256 x 256
-        # frames, files about as large, colours a few percent less faithful.
+        # libx264's veryfast preset: faster than its default (medium), for files about
+        # as large and colours slightly less faithful.
         # A generator streams the frames to ffmpeg one at a time; macro_block_size=1
         # stops imageio from resizing to multiples of 16, the padding above is enough.
         iio.imwrite(path, rgb_frames(bar), is_batch=True, plugin="FFMPEG", extension=".mp4",

@@ -22,9 +22,9 @@
 #
 # - (ga) the input, with its shape mesh and control mesh;
 # - (na) **control mesh only**: the shape mesh carried by barycentric coordinates of its
-#   control triangle (`Rig.build(..., skinning="barycentric")`);
+#   control triangle (`Rig.build(..., skinning=mvcjax.BarycentricSkinning())`);
 # - (da) **control mesh + MVC**, the paper's method (`Rig.build(...)`; mvcjax's default
-#   skinning is a continuous blend of the MVC, `skinning="mvc"` is the paper's own);
+#   skinning is a continuous blend of the MVC, `skinning=mvcjax.MVCSkinning()` is the paper's own);
 # - (ra) the **full solve**: the same energy on the shape mesh itself
 #   (`Rig.build(..., control=mvcjax.FullSolve())`).
 #
@@ -53,8 +53,8 @@ def compare(name):
     """Build the four rigs of a model, deform them under its default drag, and measure."""
     model = datasets.model(name)
     rigs = {
-        "(na) control mesh only": model.rig(skinning="barycentric"),
-        "paper's MVC": model.rig(skinning="mvc"),
+        "(na) control mesh only": model.rig(skinning=mvcjax.BarycentricSkinning()),
+        "paper's MVC": model.rig(skinning=mvcjax.MVCSkinning()),
         "(da) control mesh + MVC": model.rig(),
         "(ra) full solve": mvcjax.Rig.build(
             model.shape, model.handles, control=mvcjax.FullSolve(),

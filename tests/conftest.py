@@ -6,7 +6,7 @@ import re
 
 # The suite runs as two xdist workers on two cores (and notebooks in kernels of their
 # own): one BLAS thread each, or OpenBLAS's spinning threads oversubscribe the machine
-# (a scipy reference solve took 260 s beside a notebook instead of 12 s alone).
+# and a scipy reference solve beside a notebook slows down many times over.
 for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_variable, "1")
 
@@ -88,7 +88,7 @@ def local_point(rig, offsets, noise=0.0, seed=0):
 # Exhaustive variants, run by `pytest -m slow` (CI runs them in a step of their own): the
 # default suite keeps one or two of each family, and every test that only they would run.
 SLOW = [
-    # Running the notebooks (each in a kernel of its own, 35 to 80 s); that each matches
+    # Running the notebooks (each in a kernel of its own, slow); that each matches
     # its script stays in the default suite.
     "tests/test_notebooks.py::test_notebook_runs[*]",
     # Each solver against scipy at one drag; the other two drags here.
@@ -146,7 +146,7 @@ SLOW = [
     # batch of rigs under vmap (single rigs under vmap stay).
     "tests/test_solvers.py::test_solvers_agree_with_scipy[jaxopt_*-0-offset0]",
     "tests/test_batching.py::test_a_batch_of_rigs_falls_back_to_jax_batching",
-    # Fitting to a picture in float32: a compilation of its own (about 20 s); the default
+    # Fitting to a picture in float32: a long compilation of its own; the default
     # suite fits in float64.
     "tests/test_fit.py::test_textured_fit_recovers_the_pose_in_float32",
 ]

@@ -129,7 +129,8 @@ def test_frames_sharded_over_four_devices_give_the_same_result():
     assert float(out.stdout) < 1e-9
 
 
-@pytest.mark.parametrize("factor", ["dense", "sparse"])
+@pytest.mark.parametrize("factor", [mvcjax.advanced.DenseG(), mvcjax.advanced.SparseLU()],
+                         ids=["dense", "sparse"])
 def test_fixed_g_vmapped_steps_all_frames_as_plain_batching_would(horse, factor):
     # Under jax.vmap a plain FixedG steps every frame together (frames on the last axis),
     # through its batching rule; JAX's own batching of the loop iterates the same map.

@@ -82,7 +82,9 @@ def test_horse_model_uses_the_defaults():
 
 def test_rig_overrides_replace_options():
     m = datasets.model("stick")
-    coarse = m.rig(control_spacing=2 * m.options["control_spacing"], dtype=jnp.float32)
+    paper = m.options["control"]
+    coarse = m.rig(control=mvcjax.PaperControl(spacing=2 * paper.spacing, margin=paper.margin),
+                   dtype=jnp.float32)
     assert coarse.control_mesh.vertices.shape[0] < 0.7 * sum(PAPER["stick"][1:])
     assert abs(coarse.shape_mesh.vertices.shape[0] / PAPER["stick"][0] - 1) < 0.2
     assert coarse.shape_mesh.vertices.dtype == jnp.float32

@@ -47,7 +47,7 @@ def test_zero_length_laplacians_are_safe():
     # A square sampled with a mid-edge vertex: straight stretches have zero rest Laplacian.
     outer = np.array([[0, 0], [5, 0], [10, 0], [10, 10], [0, 10.0]])
     shape = mvcjax.Shape.from_polygon(outer)
-    rig = mvcjax.Rig.build(shape, [[2.0, 2.0], [8.0, 8.0]], control=(
+    rig = mvcjax.Rig.build(shape, [[2.0, 2.0], [8.0, 8.0]], control=mvcjax.GivenControl(
         np.array([[0, 0], [5, 0], [10, 0], [10, 10], [0, 10], [2, 2], [8, 8.0]]),
         np.array([[0, 1, 5], [1, 2, 6], [1, 6, 5], [2, 3, 6], [3, 4, 6], [4, 5, 6], [4, 0, 5]]),
     ))

@@ -17,8 +17,8 @@ from conftest import directional_derivatives, drag, local_point
 @pytest.fixture(scope="module")
 def small_full(ring_shape):
     """The ring (a shape with a hole) solved on its own coarse shape mesh."""
-    return mvcjax.Rig.build(ring_shape, [[35.0, 0.0], [-35.0, 0.0]], control="shape",
-                            shape_spacing=9.0, factor="sparse", dtype=jnp.float64)
+    return mvcjax.Rig.build(ring_shape, [[35.0, 0.0], [-35.0, 0.0]], control=mvcjax.FullSolve(),
+                            shape_spacing=9.0, factor=mvcjax.advanced.SparseLU(), dtype=jnp.float64)
 
 
 def test_sparse_and_dense_steps_agree(small_full):
@@ -33,8 +33,9 @@ def test_sparse_and_dense_steps_agree(small_full):
 
 def test_factor_is_chosen_by_size(horse_rig, small_full):
     assert isinstance(horse_rig.factor, DenseFactor)
-    assert isinstance(as_factor_method(None)(small_full.energy), DenseFactor)  # ~150 vertices
-    with pytest.raises(ValueError, match="factor must be one of"):
+    # ~150 vertices
+    assert isinstance(mvcjax.advanced.FactorBySize()(small_full.energy), DenseFactor)
+    with pytest.raises(TypeError, match="factor must be a factor object"):
         as_factor_method("cholesky")(small_full.energy)
 
 
@@ -56,8 +57,8 @@ def test_vmap_through_the_sparse_solve(small_full):
 
 def test_new_weights_refactor_the_sparse_factor(ring_shape, small_full):
     weights = mvcjax.Weights(laplacian=2.0, length=0.5, handle=30.0)
-    built = mvcjax.Rig.build(ring_shape, [[35.0, 0.0], [-35.0, 0.0]], control="shape",
-                             shape_spacing=9.0, factor="sparse", weights=weights,
+    built = mvcjax.Rig.build(ring_shape, [[35.0, 0.0], [-35.0, 0.0]], control=mvcjax.FullSolve(),
+                             shape_spacing=9.0, factor=mvcjax.advanced.SparseLU(), weights=weights,
                              dtype=jnp.float64)
     targets = drag(small_full, [[8.0, 0.0], [0.0, 0.0]])
     np.testing.assert_allclose(small_full.with_weights(weights).deform(targets),
@@ -78,12 +79,13 @@ def test_normal_products_agree_and_invert(small_full):
     np.testing.assert_allclose(sparse.solve_normal(product), x, rtol=1e-8, atol=1e-9)
 
 
-@pytest.mark.parametrize("kind", ["dense", "sparse"])
+@pytest.mark.parametrize("kind", [mvcjax.advanced.DenseG(), mvcjax.advanced.SparseLU()],
+                         ids=["dense", "sparse"])
 def test_factors_as_lineax_operators_and_solvers(small_full, kind):
     # N and N^{-1} as lineax operators: N materialises to A^T W A from the sparse
     # operators; lineax's own CG, preconditioned by N^{-1}, solves with N in one step;
     # FactorSolver solves with it directly, and differentiably.
-    factor = as_factor_method(kind)(small_full.energy)
+    factor = kind(small_full.energy)
     normal, inverse = factor.normal_operator(), factor.normal_inverse_operator()
     assert lx.is_symmetric(normal) and lx.is_positive_semidefinite(inverse)
     n = small_full.energy.num_vertices

@@ -1,5 +1,5 @@
 """FixedG's stopping test bounds the distance to the fixed point: the iteration contracts
-slowly (about 0.999 a step on the horse), so a small last step is still far from the
+slowly on the horse, so a small last step is still far from the
 minimum, and gradients taken there (implicitly, as at a minimum) are off."""
 
 import jax
@@ -33,7 +33,7 @@ def dragged(horse_rig):
         return jnp.sum(weights * horse_rig.deform(t, solver))
 
     reference = jax.jit(lambda t: loss(REFERENCE, t))
-    h = 1e-2  # in the horse's units (diagonal 480); measured 1e-7 from the exact one
+    h = 1e-2  # in the horse's units (diagonal 480): small against the shape
     steps = h * jnp.eye(targets.size, dtype=targets.dtype).reshape(-1, *targets.shape)
     fd = np.array([(float(reference(targets + e)) - float(reference(targets - e))) / (2 * h)
                    for e in steps]).reshape(targets.shape)
@@ -42,8 +42,8 @@ def dragged(horse_rig):
 
 @pytest.mark.parametrize("anderson", PLAIN_AND_ANDERSON)
 def test_converged_implicit_gradients_match_finite_differences(horse_rig, dragged, anderson):
-    # At the default rtol: the step-size test stopped 1e-3 of the diagonal from the
-    # minimum, where these gradients were 5e-4 off.
+    # At the default rtol: a test on the step size alone would stop far enough from the
+    # minimum for these gradients to miss the tolerance.
     targets, loss, fd = dragged
     solver = mvcjax.FixedG(iterations=20000, stop_early=True, adjoint="implicit",
                            anderson=anderson)
@@ -64,13 +64,13 @@ def test_converged_vertices_are_within_rtol_of_the_fixed_point(horse, horse_rig,
     assert bool(info.converged), int(info.iterations)
     fixed_point = horse_rig.solve(targets, REFERENCE)
     distance = float(jnp.abs(vertices - fixed_point).max()) / horse.diagonal
-    # The estimate is an estimate: within a small factor (measured: at most 1).
+    # The estimate is an estimate: within a small factor.
     assert distance < 2 * rtol, distance
 
 
 def test_a_small_last_step_is_not_convergence(horse_rig, dragged):
-    # 3000 plain steps bring the last step below 1e-6 of the diagonal (the old test
-    # stopped at 2444), but the vertices are still 1e-3 of it from the minimum.
+    # 3000 plain steps bring the last step below 1e-6 of the diagonal (a test on the
+    # step size alone would stop there), but the vertices are still far from the minimum.
     targets, _, _ = dragged
     for solver in [mvcjax.FixedG(iterations=3000, stop_early=True),
                    mvcjax.FixedG(iterations=3000)]:

@@ -196,11 +196,12 @@ def test_bones_sharing_a_joint_pin_it_once(character):
 def test_bones_on_the_full_solve_and_a_control_mesh_of_ones_own(bone_rig, character):
     handles = character_handles(character)
     own = mvcjax.Rig.build(character.shape, handles, dtype=jnp.float64,
-                           control=(bone_rig.control_mesh.vertices, bone_rig.control_mesh.faces))
+                           control=mvcjax.GivenControl(bone_rig.control_mesh.vertices,
+                                                       bone_rig.control_mesh.faces))
     assert own.control_mesh.handles.shape == bone_rig.control_mesh.handles.shape
     targets = arm_raised(bone_rig)
     np.testing.assert_allclose(own.solve(targets), bone_rig.solve(targets), atol=1e-9)
-    full = mvcjax.Rig.build(character.shape, handles, dtype=jnp.float64, control="shape")
+    full = mvcjax.Rig.build(character.shape, handles, dtype=jnp.float64, control=mvcjax.FullSolve())
     pins = arm_pins(full, full.solve(targets, mvcjax.GaussNewton()))
     on_target = np.asarray(full.pinned_targets(targets))[np.asarray(full.handles.first) == 3]
     assert np.abs(pins - on_target).max() < 1e-2 * character.shape.diagonal
@@ -211,7 +212,8 @@ def test_a_control_mesh_of_ones_own_needs_the_bone_ends(bone_rig, character):
     handles[2] = mvcjax.Bone(SHOULDER, (45.0, 131.0))  # ends off the given mesh's vertices
     with pytest.raises(ValueError, match="not a vertex of the given control mesh"):
         mvcjax.Rig.build(character.shape, handles,
-                         control=(bone_rig.control_mesh.vertices, bone_rig.control_mesh.faces))
+                         control=mvcjax.GivenControl(bone_rig.control_mesh.vertices,
+                                                     bone_rig.control_mesh.faces))
 
 
 @pytest.mark.parametrize("handles, error, match", [
@@ -264,7 +266,10 @@ def test_bones_do_not_depend_on_the_shape_s_scale(bone_rig, character, scale):
                mvcjax.Bone(place(h.start), place(h.end), stretch=h.stretch)
                for h in character_handles(character)]
     shape = mvcjax.Shape.from_polygon(place(character.shape.outer))
-    options = {k: v * scale for k, v in character.options.items()}
+    paper = character.options["control"]
+    options = {"shape_spacing": character.options["shape_spacing"] * scale,
+               "control": mvcjax.PaperControl(spacing=paper.spacing * scale,
+                                              margin=paper.margin * scale)}
     moved = mvcjax.Rig.build(shape, handles, dtype=jnp.float64, **options)
     assert moved.control_mesh.handles.shape == bone_rig.control_mesh.handles.shape
     targets = arm_raised(bone_rig, 45.0)

@@ -75,14 +75,14 @@ def test_close_parts_move_independently(horse):
     handles = np.array([[280.0, 20], [62, 20], [125, 27], [200, 230], [372, 238], [262, 95]])
     ours = mvcjax.Rig.build(horse, handles)
     coarse = mvcjax.Rig.build(horse, handles, shape_spacing=10.0)
-    full = mvcjax.Rig.build(horse, handles, shape_spacing=10.0, control=(
+    full = mvcjax.Rig.build(horse, handles, shape_spacing=10.0, control=mvcjax.GivenControl(
         np.asarray(coarse.shape_mesh.vertices), np.asarray(coarse.shape_mesh.faces)))
     # A control polygon from a plain offset, simplified to the control spacing by shapely.
     offset = horse.polygon.buffer(3.0).exterior.simplify(1.0)
     loop = np.asarray(shapely.segmentize(offset, 26.0).coords)[:-1]
     cm = ours.control_mesh
-    bridged = mvcjax.Rig.build(horse, handles, control=triangulate_control(
-        [loop], np.asarray(cm.vertices[cm.inner])))
+    bridged = mvcjax.Rig.build(horse, handles, control=mvcjax.GivenControl(
+        *triangulate_control([loop], np.asarray(cm.vertices[cm.inner]))))
     assert shapely.Polygon(loop).covers(shapely.Point(260.5, 40.0))  # it does bridge
 
     solver = mvcjax.FixedG(iterations=5000, anderson=5, stop_early=True, rtol=1e-9)

@@ -1,3 +1,5 @@
+import re
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -139,8 +141,8 @@ def test_letter_with_a_counter():
 @pytest.fixture(scope="module")
 def ring_full(ring_shape):
     # The sparse factor, as on any shape mesh above 1000 vertices; small enough for scipy.
-    return mvcjax.Rig.build(ring_shape, [[35.0, 0.0], [-35.0, 0.0]], control="shape",
-                            shape_spacing=9.0, factor="sparse")
+    return mvcjax.Rig.build(ring_shape, [[35.0, 0.0], [-35.0, 0.0]], control=mvcjax.FullSolve(),
+                            shape_spacing=9.0, factor=mvcjax.advanced.SparseLU())
 
 
 def test_full_solve_is_on_the_shape_mesh(ring_full):
@@ -162,7 +164,7 @@ def test_full_solve_reaches_the_scipy_minimum(ring_full, ring_shape):
     solver = mvcjax.FixedG(iterations=5000, rtol=1e-11, stop_early=True, anderson=5)
     vertices, info = ring_full.solve(targets, solver, return_info=True)
     assert bool(info.converged), int(info.iterations)
-    # Dogbox: on this mesh MINPACK's LM crawls (774 evaluations, 150 s) to the same point.
+    # Dogbox: on this mesh MINPACK's LM crawls to the same point.
     minimum, minimum_energy = scipy_minimum(ring_full, targets, ring_full.start(targets),
                                             method="dogbox")
     assert np.abs(np.asarray(vertices) - minimum).max() < 1e-6 * ring_shape.diagonal
@@ -193,7 +195,8 @@ def test_structured_solvers_run_on_the_sparse_factor(ring_full, ring_shape, name
 
 
 def test_a_dense_jacobian_that_does_not_fit_is_refused(horse):
-    full = mvcjax.Rig.build(horse, datasets.horse_handles(), control="shape", shape_spacing=4.0)
+    full = mvcjax.Rig.build(horse, datasets.horse_handles(), control=mvcjax.FullSolve(),
+                            shape_spacing=4.0)
     with pytest.raises(ValueError, match="linear_solver='cg'"):
         full.solve(full.handle_positions, mvcjax.GaussNewton(linear_solver="cholesky"))
     with pytest.raises(ValueError, match="use mvcjax.FixedG"):
@@ -204,7 +207,8 @@ def test_a_dense_jacobian_that_does_not_fit_is_refused(horse):
 def test_user_control_mesh(horse, horse_rig):
     cm = horse_rig.control_mesh
     rig = mvcjax.Rig.build(horse, datasets.horse_handles(),
-                           control=(np.asarray(cm.vertices), np.asarray(cm.faces)))
+                           control=mvcjax.GivenControl(np.asarray(cm.vertices),
+                                                       np.asarray(cm.faces)))
     assert rig.control_mesh.outer.shape == cm.outer.shape
     targets = drag(rig, [[30.0, 0.0], [0, 0], [0, 0], [0, 0], [0, 0]])
     np.testing.assert_allclose(rig.deform(targets), horse_rig.deform(targets), atol=1e-6)
@@ -222,18 +226,31 @@ def test_options_as_objects_build_what_the_old_spellings_do(horse, horse_rig):
     targets = drag(horse_rig, [[30.0, 0.0], [0, 0], [0, 0], [0, 0], [0, 0]])
     for rig in (given, paper):
         np.testing.assert_allclose(rig.deform(targets), horse_rig.deform(targets), atol=1e-8)
-    # The paper's spacing, as an option or as the older keyword: the same control mesh.
     coarse = mvcjax.Rig.build(horse, handles, control=mvcjax.PaperControl(spacing=40.0))
-    keyword = mvcjax.Rig.build(horse, handles, control_spacing=40.0)
-    np.testing.assert_array_equal(coarse.control_mesh.faces, keyword.control_mesh.faces)
     assert coarse.control_mesh.vertices.shape[0] < cm.vertices.shape[0]
     # FactorBySize decides by the control mesh's size.
     small = mvcjax.Rig.build(horse, handles, factor=mvcjax.advanced.FactorBySize(max_dense=50))
     assert isinstance(small.factor, mvcjax.advanced.SparseFactor)
-    with pytest.raises(ValueError, match="given twice"):
-        mvcjax.Rig.build(horse, handles, control=mvcjax.PaperControl(spacing=40.0), margin=3.0)
-    with pytest.raises(ValueError, match="factor must be one of mvcjax.advanced.DenseG"):
+    with pytest.raises(TypeError, match="factor must be a factor object"):
         mvcjax.Rig.build(horse, handles, factor="lu")
+
+
+@pytest.mark.parametrize("option, spelling, fix", [
+    ("control", "shape", "mvcjax.FullSolve()"),
+    ("control", None, "mvcjax.PaperControl()"),
+    ("control", mvcjax.FullSolve, "mvcjax.FullSolve()"),
+    ("factor", "sparse", "mvcjax.advanced.SparseLU()"),
+    ("factor", "dense", "mvcjax.advanced.DenseG()"),
+    ("factor", None, "mvcjax.advanced.FactorBySize()"),
+    ("skinning", "blended", "mvcjax.BlendedMVCSkinning()"),
+    ("skinning", "mvc", "mvcjax.MVCSkinning()"),
+    ("skinning", mvcjax.BarycentricSkinning, "mvcjax.BarycentricSkinning()"),
+])
+def test_older_spellings_are_refused_with_the_object_to_write(horse, option, spelling, fix):
+    with pytest.raises(TypeError, match=rf"{option} must be .*; write {re.escape(fix)}"):
+        mvcjax.Rig.build(horse, datasets.horse_handles(), **{option: spelling})
+    with pytest.raises(TypeError, match="control_spacing"):
+        mvcjax.Rig.build(horse, datasets.horse_handles(), control_spacing=40.0)
 
 
 def test_bad_handles_and_targets_are_explained(horse, horse_rig):
@@ -258,4 +275,5 @@ def test_bad_handles_and_targets_are_explained(horse, horse_rig):
     with pytest.raises(ValueError, match="not a vertex of the given control mesh"):
         cm = horse_rig.control_mesh
         mvcjax.Rig.build(horse, [[101.0, 200.0]],
-                         control=(np.asarray(cm.vertices), np.asarray(cm.faces)))
+                         control=mvcjax.GivenControl(np.asarray(cm.vertices),
+                                                     np.asarray(cm.faces)))

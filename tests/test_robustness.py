@@ -43,8 +43,8 @@ def check_rest_and_rigid(rig, diagonal, tol):
 @pytest.mark.parametrize("offset, scale", [(1000.0, 1.0), (1e5, 1.0), (1.0, 1e-3), (0.0, 1e-20),
                                            (0.0, 1e20), (1e8, 1.0)])
 def test_any_placement_and_scale_in_float64(offset, scale):
-    # The star at (1000, 1000) gave NaN skinning rows and NaN vertices, reported converged;
-    # a square at 1e5 missed its rest shape by 19% of its diagonal.
+    # Far from the origin, rounding must not give NaN skinning rows and NaN vertices
+    # reported converged (a star at (1000, 1000)), nor miss the rest shape (a square at 1e5).
     shape = mvcjax.Shape.from_polygon(star() * scale + offset)
     rig = mvcjax.Rig.build(shape, STAR_HANDLES * scale + offset, dtype=jnp.float64,
                            shape_spacing=0.1 * scale)
@@ -153,7 +153,7 @@ def test_a_dense_outline_is_thinned():
 def test_a_tiny_margin_is_refused():
     shape = mvcjax.Shape.from_polygon(star())
     with pytest.raises(ValueError, match="margin"):
-        mvcjax.Rig.build(shape, STAR_HANDLES, margin=1e-9)
+        mvcjax.Rig.build(shape, STAR_HANDLES, control=mvcjax.PaperControl(margin=1e-9))
 
 
 @pytest.fixture(scope="module")
@@ -170,20 +170,27 @@ def small():
     (dict(dtype="no such type"), TypeError, "not a dtype"),
     (dict(shape_spacing=float("nan")), ValueError, "shape_spacing"),
     (dict(shape_spacing="1"), TypeError, "shape_spacing"),
-    (dict(control_spacing=-1.0), ValueError, "control_spacing"),
-    (dict(margin=0.0), ValueError, "margin"),
+    (dict(control=mvcjax.PaperControl(spacing=-1.0)), ValueError, r"PaperControl\(spacing"),
+    (dict(control=mvcjax.PaperControl(margin=0.0)), ValueError, r"PaperControl\(margin"),
     (dict(control=3), TypeError, "control must be"),
     (dict(control="mesh"), TypeError, "control must be"),
-    (dict(control=(star(), np.array([[0, 1, 99]]))), ValueError, "faces index vertices"),
-    (dict(control=(star(), np.array([[0.0, 1, 2]]))), ValueError, "integer array"),
     (dict(weights={"handle": 10.0}), TypeError, r"mvcjax.Weights\(\*\*\{.handle.: 10.0\}\)"),
-    (dict(skinning="nearest"), ValueError, "skinning must be"),
+    (dict(skinning="nearest"), TypeError, "skinning must be"),
     (dict(max_triangles=0), ValueError, "max_triangles"),
 ], ids=lambda v: str(v)[:40])
 def test_bad_build_arguments_are_explained(kwargs, error, message):
     shape = mvcjax.Shape.from_polygon(star())
     with pytest.raises(error, match=message):
         mvcjax.Rig.build(shape, STAR_HANDLES, **kwargs)
+
+
+@pytest.mark.parametrize("faces, message", [([[0, 1, 99]], "faces index vertices"),
+                                            ([[0.0, 1, 2]], "integer array")])
+def test_a_bad_control_mesh_of_ones_own_is_explained(faces, message):
+    shape = mvcjax.Shape.from_polygon(star())
+    with pytest.raises(ValueError, match=message):
+        mvcjax.Rig.build(shape, STAR_HANDLES,
+                         control=mvcjax.GivenControl(star(), np.array(faces)))
 
 
 def test_float64_without_x64_says_how_to_enable_it():
@@ -239,8 +246,8 @@ def maps():
 
 
 def test_many_rigs_of_one_size_reuse_compiled_code():
-    # Each eager build and solve compiled programs of its own and kept them: about 300
-    # memory maps a rig, until a long session crashed at the kernel's limit.
+    # Eager builds and solves that compile programs of their own and keep them hold
+    # memory maps for every rig, until a long session crashes at the kernel's limit.
     square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
     counts = []
     for k in range(60):
@@ -268,8 +275,9 @@ def test_sparse_rigs_of_one_size_share_a_program_and_keep_their_own_factor(ring_
         return rig.deform(targets)
 
     def build():
-        return mvcjax.Rig.build(ring_shape, [[35.0, 0.0], [-35.0, 0.0]], control="shape",
-                                shape_spacing=9.0, factor="sparse", dtype=jnp.float64)
+        return mvcjax.Rig.build(ring_shape, [[35.0, 0.0], [-35.0, 0.0]], control=mvcjax.FullSolve(),
+                                shape_spacing=9.0, factor=mvcjax.advanced.SparseLU(),
+                                dtype=jnp.float64)
 
     first = build()
     rigs = [first, build(), first.with_weights(mvcjax.Weights(length=5.0, handle=10.0))]

@@ -114,7 +114,7 @@ def star(points=12, inner=0.35):
 
 def test_a_near_closing_vertex_far_out_is_a_real_vertex():
     # The last vertex of this star is 0.7 from its first: np.allclose's tolerance near
-    # 1e5 took it for a repeated closing vertex and dropped it (area up 25%).
+    # 1e5 would take it for a repeated closing vertex and drop it.
     shape = Shape.from_polygon(star() + 1e5)
     assert len(shape.outer) == 12
     assert shape.area == pytest.approx(Shape.from_polygon(star()).area, rel=1e-6)

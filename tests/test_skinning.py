@@ -30,7 +30,7 @@ def test_dense_skinning_matrix_is_the_same_map(horse_rig):
 
 @pytest.fixture(scope="module")
 def skinned_rigs(horse):
-    return {s: mvcjax.Rig.build(horse, datasets.horse_handles(), skinning=s)
+    return {s: mvcjax.Rig.build(horse, datasets.horse_handles(), skinning=METHODS[s]())
             for s in list(METHODS)}
 
 
@@ -58,7 +58,7 @@ def test_blended_skinning_is_smoothest_and_the_default(horse, skinned_rigs):
     # The paper's per-triangle MVC jumps across control edges; the blend does not.
     assert measured["blended"] < measured["barycentric"] < measured["mvc"], measured
     # As smooth as the full solve on the shape mesh, at the paper's 15 iterations each.
-    full = mvcjax.Rig.build(horse, datasets.horse_handles(), control="shape")
+    full = mvcjax.Rig.build(horse, datasets.horse_handles(), control=mvcjax.FullSolve())
     out = full.deform(full.handle_positions + datasets.horse_drag(), paper, init="rigid")
     assert measured["blended"] < 1.1 * mvcjax.smoothness(full.shape_mesh.vertices, out,
                                                           full.shape_mesh.faces), measured
@@ -68,10 +68,11 @@ def test_blended_skinning_is_smoothest_and_the_default(horse, skinned_rigs):
 
 
 def test_unknown_skinning_is_explained(horse):
-    with pytest.raises(ValueError, match="skinning must be one of"):
+    with pytest.raises(TypeError, match="skinning must be a skinning object"):
         mvcjax.Rig.build(horse, datasets.horse_handles(), skinning="linear")
-    with pytest.raises(ValueError, match="skinning must be one of"):
-        mvcjax.Rig.build(horse, datasets.horse_handles(), skinning="linear", control="shape")
+    with pytest.raises(TypeError, match="skinning must be a skinning object"):
+        mvcjax.Rig.build(horse, datasets.horse_handles(), skinning="linear",
+                         control=mvcjax.FullSolve())
 
 
 @pytest.mark.parametrize("name", METHODS)
@@ -133,7 +134,7 @@ def test_weights_at_points_outside_say_so(horse_rig):
 
 
 def test_weights_at_on_a_full_rig_are_barycentric_on_the_shape_mesh(horse):
-    full = mvcjax.Rig.build(horse, datasets.horse_handles(), control="shape")
+    full = mvcjax.Rig.build(horse, datasets.horse_handles(), control=mvcjax.FullSolve())
     assert full.skinning.method == mvcjax.BarycentricSkinning()
     sm = full.shape_mesh
     centroids = np.asarray(sm.vertices)[np.asarray(sm.faces)].mean(axis=1)

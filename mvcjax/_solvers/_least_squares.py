@@ -87,7 +87,7 @@ class ScaledProblem(eqx.Module):
         self.offset = jnp.concatenate([jnp.zeros(rows.shape[:1], dtype),
                                        jax.lax.complex(u[0], u[1])])
         # Weights normalised: tolerances then do not depend on their overall scale (at
-        # 1e-30 everywhere, optimistix stopped after one step).
+        # 1e-30 everywhere, optimistix's absolute tolerance would stop after one step).
         w = energy.weights.normalised()
         self.row_weight = jnp.sqrt(jnp.concatenate([
             _local_row_weights(energy), jnp.broadcast_to(w.handle, h.shape).astype(dtype)]))
