@@ -37,6 +37,8 @@ GAP = 1e-6
 
 def solvers():
     """name -> (solver, steps to record)."""
+    import lineax as lx
+
     import mvcjax
 
     return {
@@ -47,8 +49,9 @@ def solvers():
         "dogleg": (mvcjax.Dogleg(), 400),
         "levenberg_marquardt": (mvcjax.LevenbergMarquardt(), 400),
         # The earlier default, for comparison in the same run: 8 plain CG iterations a step.
-        "gauss_newton_cg8_undeflated": (mvcjax.GaussNewton(cg_steps=8, cg_deflate=False), 400),
-        "gauss_newton_cholesky": (mvcjax.GaussNewton(linear_solver="cholesky"), 200),
+        "gauss_newton_cg8_undeflated": (mvcjax.GaussNewton(
+            linear_solver=mvcjax.advanced.StructuredCG(steps=8, deflate=False)), 400),
+        "gauss_newton_cholesky": (mvcjax.GaussNewton(linear_solver=lx.Cholesky()), 200),
         "jaxopt_gauss_newton": (mvcjax.advanced.JaxoptGaussNewton(), 200),
         "jaxopt_levenberg_marquardt": (mvcjax.advanced.JaxoptLevenbergMarquardt(), 200),
     }

@@ -35,3 +35,4 @@ from ._solvers import (
     JaxoptGaussNewton as JaxoptGaussNewton,
     JaxoptLevenbergMarquardt as JaxoptLevenbergMarquardt,
 )
+from ._solvers._normal_cg import StructuredCG as StructuredCG

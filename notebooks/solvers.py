@@ -26,8 +26,8 @@
 #   residuals. The Jacobian `A - db/dV` is never formed: each step runs a few conjugate
 #   gradients on the Gauss-Newton matrix, kept as the rig's constant normal matrix
 #   `N = A^T W A` (the matrix behind `G`) less the rotation terms, preconditioned by
-#   `N` and deflated by the previous step (`cg_deflate`). `linear_solver="cholesky"` is
-#   the dense alternative;
+#   `N` and deflated by the previous step (`mvcjax.advanced.StructuredCG()`, the default
+#   `linear_solver`). `linear_solver=lx.Cholesky()` is the dense alternative;
 # - `JaxoptGaussNewton()`, `JaxoptLevenbergMarquardt()`: jaxopt's, on a dense Jacobian.
 #
 # This notebook runs them on the horse, records the energy after every step with
@@ -47,6 +47,7 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+import optimistix as optx  # noqa: E402
 
 import mvcjax  # noqa: E402
 from mvcjax import datasets  # noqa: E402
@@ -187,7 +188,8 @@ plt.show()
 # %% [markdown]
 # ## Gradients through the solvers
 # At convergence the solvers return the same minimum, so their implicit gradients agree
-# (optimistix's, and `FixedG(adjoint="implicit")`'s, here with Anderson acceleration). The unrolled
+# (optimistix's, and `FixedG(adjoint=optx.ImplicitAdjoint())`'s, here with Anderson
+# acceleration). The unrolled
 # gradient of a plain `FixedG` is the exact derivative of what its loop computed: after
 # 3000 steps, which on this drag are not yet at the minimum (see the plot above), it
 # differs from them in the fourth digit.
@@ -200,7 +202,7 @@ def landmark_loss(t, solver):
 for name, solver in {
     "fixed_g (unrolled, 3000 steps)": mvcjax.FixedG(iterations=3000, unroll=0),
     "anderson (implicit)": mvcjax.FixedG(iterations=5000, rtol=1e-12, stop_early=True,
-                                         anderson=5, adjoint="implicit"),
+                                         anderson=5, adjoint=optx.ImplicitAdjoint()),
     "gauss_newton (implicit)": mvcjax.GaussNewton(),
 }.items():
     _, info = rig.solve(targets, solver, return_info=True)

@@ -5,6 +5,7 @@ minimum, and gradients taken there (implicitly, as at a minimum) are off."""
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optimistix as optx
 import pytest
 
 import mvcjax
@@ -45,7 +46,7 @@ def test_converged_implicit_gradients_match_finite_differences(horse_rig, dragge
     # At the default rtol: a test on the step size alone would stop far enough from the
     # minimum for these gradients to miss the tolerance.
     targets, loss, fd = dragged
-    solver = mvcjax.FixedG(iterations=20000, stop_early=True, adjoint="implicit",
+    solver = mvcjax.FixedG(iterations=20000, stop_early=True, adjoint=optx.ImplicitAdjoint(),
                            anderson=anderson)
     _, info = horse_rig.solve(targets, solver, return_info=True)
     assert bool(info.converged), int(info.iterations)

@@ -229,12 +229,12 @@ def test_gauss_newton_solve_matches_the_dense_step(gauss_newton, damping):
 
 
 def test_structured_step_options_are_checked():
-    with pytest.raises(ValueError, match="linear_solver"):
+    with pytest.raises(TypeError, match="linear_solver"):
         mvcjax.GaussNewton(linear_solver="qr")
-    with pytest.raises(ValueError, match="cg_steps"):
-        mvcjax.Dogleg(cg_steps=0)
-    with pytest.raises(ValueError, match="cg_rtol"):
-        mvcjax.GaussNewton(cg_rtol=1.0)
+    with pytest.raises(ValueError, match="steps"):
+        mvcjax.advanced.StructuredCG(steps=0)
+    with pytest.raises(ValueError, match="rtol"):
+        mvcjax.advanced.StructuredCG(rtol=1.0)
 
 
 def test_gauss_newton_solve_reports_a_step_it_could_not_take(gauss_newton):

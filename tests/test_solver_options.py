@@ -5,7 +5,9 @@ import re
 
 import jax
 import jax.numpy as jnp
+import lineax as lx
 import numpy as np
+import optimistix as optx
 import pytest
 
 import mvcjax
@@ -33,9 +35,9 @@ def stick_targets(stick):
     (dict(rtol="tight"), TypeError, "finite number >= 0.*got str"),
     (dict(max_steps=-1), ValueError, "at least 1"),
     (dict(max_steps=10.0), TypeError, "whole number"),
-    (dict(cg_steps=0), ValueError, "at least 1"),
-    (dict(cg_rtol=float("nan")), ValueError, "finite number >= 0"),
-    (dict(cg_rtol=1.0), ValueError, "relative decrease"),
+    (dict(linear_solver="cg"), TypeError, r"linear_solver=mvcjax.advanced.StructuredCG\(\)"),
+    (dict(linear_solver="cholesky"), TypeError, r"linear_solver=lx.Cholesky\(\)"),
+    (dict(linear_solver=3), TypeError, "or a lineax solver"),
 ])
 def test_least_squares_options_are_checked(solver, kwargs, error, message):
     with pytest.raises(error, match=message):
@@ -136,8 +138,12 @@ def test_option_errors_name_the_solver_the_option_and_the_fix():
 @pytest.mark.parametrize("make, error, message", [
     (lambda: mvcjax.FixedG(unroll=-1), ValueError, r"FixedG\(unroll=-1\): needs at least 0"),
     (lambda: mvcjax.FixedG(regularisation=-1e-3), ValueError, "regularisation"),
-    (lambda: mvcjax.Dogleg(cg_rtol="loose"), TypeError, r"Dogleg\(cg_rtol='loose'\)"),
-    (lambda: mvcjax.LevenbergMarquardt(cg_steps=4.0), TypeError, "cg_steps"),
+    (lambda: mvcjax.advanced.StructuredCG(rtol="loose"), TypeError,
+     r"StructuredCG\(rtol='loose'\)"),
+    (lambda: mvcjax.advanced.StructuredCG(steps=4.0), TypeError, "steps"),
+    (lambda: mvcjax.advanced.StructuredCG(steps=0), ValueError, "at least 1"),
+    (lambda: mvcjax.advanced.StructuredCG(rtol=1.0), ValueError, "relative decrease"),
+    (lambda: mvcjax.FoldFree(linear_solver=lx.Cholesky()), TypeError, "StructuredCG"),
     (lambda: mvcjax.advanced.JaxoptGaussNewton(tol=float("inf")), ValueError, "finite number"),
     (lambda: mvcjax.advanced.JaxoptLevenbergMarquardt(max_steps=False), TypeError, "whole number"),
     (lambda: mvcjax.FixedG().fixed_steps(2.5), TypeError, r"fixed_steps\(2.5\)"),
@@ -171,7 +177,7 @@ def test_check_weights_says_how_to_write_weights():
 
 @pytest.mark.parametrize("solver", [
     mvcjax.FixedG(), mvcjax.FixedG(stop_early=True, iterations=50),
-    mvcjax.FixedG(stop_early=True, iterations=50, adjoint="implicit"),
+    mvcjax.FixedG(stop_early=True, iterations=50, adjoint=optx.ImplicitAdjoint()),
     mvcjax.FixedG(anderson=3), mvcjax.GaussNewton(), mvcjax.Dogleg(),
     mvcjax.advanced.JaxoptGaussNewton(),
 ], ids=repr)
@@ -217,7 +223,7 @@ def test_forward_mode_through_a_solve_that_stops_early(stick, stick_targets):
     with pytest.raises(TypeError, match="forward-mode"):
         jax.jvp(lambda t: loss(unrolled, t), (stick_targets,), (d,))
     implicit = mvcjax.FixedG(iterations=20000, rtol=1e-12, stop_early=True, anderson=5,
-                             adjoint="implicit")
+                             adjoint=optx.ImplicitAdjoint())
     _, tangent = jax.jvp(lambda t: loss(implicit, t), (stick_targets,), (d,))
     h = 1e-3  # each solve stops within its tolerance of the minimum: no smaller steps
     up, down = loss(implicit, stick_targets + h * d), loss(implicit, stick_targets - h * d)

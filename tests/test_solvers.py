@@ -6,7 +6,9 @@ import sys
 
 import jax
 import jax.numpy as jnp
+import lineax as lx
 import numpy as np
+import optimistix as optx
 import pytest
 
 import mvcjax
@@ -19,7 +21,7 @@ TIGHT = {
     "fixed_g": mvcjax.FixedG(iterations=60000, rtol=1e-8, stop_early=True),
     "anderson": mvcjax.FixedG(iterations=20000, rtol=1e-11, stop_early=True, anderson=5),
     "gauss_newton": mvcjax.GaussNewton(max_steps=500),
-    "gauss_newton_cholesky": mvcjax.GaussNewton(max_steps=500, linear_solver="cholesky"),
+    "gauss_newton_cholesky": mvcjax.GaussNewton(max_steps=500, linear_solver=lx.Cholesky()),
     "levenberg_marquardt": mvcjax.LevenbergMarquardt(max_steps=1000),
     "dogleg": mvcjax.Dogleg(max_steps=500),
     "jaxopt_gauss_newton": mvcjax.advanced.JaxoptGaussNewton(max_steps=500),
@@ -104,7 +106,8 @@ def test_several_minima_are_each_stationary(horse_rig, solve):
         assert bool(info.converged), name
         assert gradient_norm(horse_rig, vertices, targets) < 1e-5, name
     assert energies["fixed_g"] == pytest.approx(energies["anderson"], rel=1e-9)
-    plain = mvcjax.LevenbergMarquardt(max_steps=1000, cg_steps=8, cg_deflate=False)
+    plain = mvcjax.LevenbergMarquardt(
+        max_steps=1000, linear_solver=mvcjax.advanced.StructuredCG(steps=8, deflate=False))
     vertices, info = jax.jit(lambda t: horse_rig.solve(t, plain, init="rigid",
                                                        return_info=True))(targets)
     assert bool(info.converged)
@@ -242,9 +245,9 @@ IMPLICIT = {
     "dogleg": mvcjax.Dogleg(),
     "jaxopt_levenberg_marquardt": mvcjax.advanced.JaxoptLevenbergMarquardt(),
     "fixed_g_implicit": mvcjax.FixedG(iterations=20000, rtol=1e-12, stop_early=True,
-                                      adjoint="implicit"),
+                                      adjoint=optx.ImplicitAdjoint()),
     "anderson_implicit": mvcjax.FixedG(iterations=5000, rtol=1e-12, stop_early=True,
-                                       anderson=5, adjoint="implicit"),
+                                       anderson=5, adjoint=optx.ImplicitAdjoint()),
 }
 
 
@@ -283,12 +286,17 @@ def test_stop_early_differentiates_in_reverse_mode_either_way(stick_gradients):
     loss, targets, _, _, _ = stick_gradients
     early = mvcjax.FixedG(iterations=3000, stop_early=True, anderson=5)
     assert bool(jnp.all(jnp.isfinite(jax.grad(loss, argnums=1)(early, targets, 0.0))))
-    implicit = dataclasses.replace(early, adjoint="implicit")
+    implicit = dataclasses.replace(early, adjoint=optx.ImplicitAdjoint())
     assert bool(jnp.all(jnp.isfinite(jax.grad(loss, argnums=1)(implicit, targets, 0.0))))
-    with pytest.raises(ValueError, match="adjoint"):
-        mvcjax.FixedG(adjoint="backprop")
-    with pytest.raises(ValueError, match="stop_early=True"):
+    with pytest.raises(TypeError, match=r"adjoint=optx.ImplicitAdjoint\(\)"):
         mvcjax.FixedG(adjoint="implicit")
+    with pytest.raises(TypeError, match="choose optx.RecursiveCheckpointAdjoint"):
+        mvcjax.FixedG(adjoint=3)
+    with pytest.raises(ValueError, match="without a linear_solver"):
+        mvcjax.FixedG(adjoint=optx.ImplicitAdjoint(linear_solver=lx.Cholesky()),
+                      stop_early=True)
+    with pytest.raises(ValueError, match="stop_early=True"):
+        mvcjax.FixedG(adjoint=optx.ImplicitAdjoint())
 
 
 @pytest.mark.parametrize("solver", [
@@ -330,7 +338,8 @@ def test_deflating_by_the_previous_step_needs_far_fewer_steps(horse_rig, name):
     targets = targets_for(horse_rig, 0, [60.0, 0.0])
 
     def history(deflate):
-        solver = getattr(mvcjax, name)(cg_steps=4, cg_deflate=deflate)
+        solver = getattr(mvcjax, name)(
+            linear_solver=mvcjax.advanced.StructuredCG(steps=4, deflate=deflate))
         return np.asarray(jax.jit(lambda t: horse_rig.energy_history(t, solver, 160))(targets))
 
     deflated, plain = history(True), history(False)
@@ -399,7 +408,7 @@ def test_a_solver_without_a_history_says_so(horse_rig):
 
 @pytest.mark.parametrize("solver", [
     mvcjax.GaussNewton(), mvcjax.Dogleg(), mvcjax.LevenbergMarquardt(),
-    mvcjax.Dogleg(linear_solver="cholesky"),
+    mvcjax.Dogleg(linear_solver=lx.Cholesky()),
 ], ids=["gauss_newton", "dogleg", "levenberg_marquardt", "dogleg_cholesky"])
 def test_optimistix_solvers_in_float32(horse, horse_rig, solve, solver):
     # Single precision with jax_enable_x64 on (the suite's setting): optimistix's dogleg

@@ -138,7 +138,15 @@ def python_scalar(value):
     return value.item() if isinstance(value, (np.integer, np.floating)) else value
 
 
-def check_count(solver: AbstractSolver, name: str, minimum: int = 1) -> None:
+def checked_in_init(value):
+    """An identity converter, for options whose `__check_init__` refuses a wrong value
+    (a string where an object is wanted) with the spelling to write: equinox then
+    leaves the argument unannotated, so that a runtime type checker does not answer
+    first with a bare type error."""
+    return value
+
+
+def check_count(solver: eqx.Module, name: str, minimum: int = 1) -> None:
     """Refuse an option that must be a whole number (a Python or numpy int, not a bool
     or a float) of at least `minimum`: TypeError for the type, ValueError for the value."""
     value = getattr(solver, name)
@@ -152,7 +160,7 @@ def check_count(solver: AbstractSolver, name: str, minimum: int = 1) -> None:
         raise ValueError(f"{where}: needs at least {minimum}.")
 
 
-def check_tolerance(solver: AbstractSolver, name: str, default: str = "") -> None:
+def check_tolerance(solver: eqx.Module, name: str, default: str = "") -> None:
     """Refuse a tolerance that is not a finite real number >= 0 (None means the default,
     where there is one): TypeError for the type, ValueError for the value."""
     value = getattr(solver, name)

@@ -9,6 +9,8 @@ import equinox as eqx
 import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
+import lineax as lx
+import optimistix as optx
 from jaxtyping import Array
 
 from .._batching import only_batched, with_batching_rule
@@ -19,13 +21,12 @@ from ._base import (
     check_count,
     check_steps,
     check_tolerance,
+    checked_in_init,
     converged_and_finite,
     python_scalar,
 )
 from ._least_squares import ScaledProblem
 from ._normal_cg import hessian_solve
-
-ADJOINTS = ("unrolled", "implicit")
 
 # The stopping test bounds the distance to the fixed point, |r| / (1 - rho), from the
 # residual r = G b(V) - V and the contraction rho of the plain step V <- G b(V), measured
@@ -117,17 +118,20 @@ class FixedG(AbstractSolver):
             runs equinox's checkpointed while loop: as fast as a plain one, and reverse
             mode (`jax.grad`) differentiates the iterations run by recomputing them from
             checkpoints, but forward mode (`jax.jvp`, `jax.jacfwd`) is refused (JAX's
-            TypeError about a custom_vjp function). `adjoint="implicit"` supports both
-            modes, and for a solve run to convergence it is cheaper and exact at the
-            minimum.
-        adjoint: how gradients flow through the solve. `"unrolled"` (default)
-            differentiates every iteration of the fixed-length loop: exact for what
-            was computed, even after 15 iterations, at the memory cost of all of them
-            in reverse mode. `"implicit"` applies the implicit function theorem at the
+            TypeError about a custom_vjp function). `optx.ImplicitAdjoint()` supports
+            both modes, and for a solve run to convergence it is cheaper and exact at
+            the minimum.
+        adjoint: how gradients flow through the solve, an optimistix adjoint.
+            `optx.RecursiveCheckpointAdjoint()` (default) differentiates every
+            iteration of the loop: exact for what was computed, even after 15
+            iterations, at the memory cost of all of them in reverse mode.
+            `optx.ImplicitAdjoint()` applies the implicit function theorem at the
             returned vertices, taken to be a stationary point of the energy: one
-            linear solve with the energy's Hessian (conjugate gradients preconditioned
-            by the rig's factor), whatever the number of iterations. Right for solves
-            run to convergence, so it requires `stop_early=True`.
+            linear solve with the energy's Hessian, whatever the number of iterations.
+            Right for solves run to convergence, so it requires `stop_early=True`. Its
+            linear solve is conjugate gradients preconditioned by the rig's factor (a
+            dense solve would form the Hessian): leave its `linear_solver` at the
+            default.
         anderson: if positive, Anderson acceleration over the last `anderson` steps,
             with three safeguards: a ridge on the small least-squares system, an energy
             check (an extrapolation that does not lower the energy below the plain
@@ -138,8 +142,8 @@ class FixedG(AbstractSolver):
 
     Refused, naming the option (TypeError for a wrong type, ValueError for a bad
     value): `iterations` not a whole number >= 1, `anderson` or `unroll` not a whole
-    number >= 0, `rtol` or `regularisation` not a finite number >= 0, an unknown
-    `adjoint`, and `adjoint="implicit"` without `stop_early=True`.
+    number >= 0, `rtol` or `regularisation` not a finite number >= 0, an `adjoint` other
+    than those two, and `optx.ImplicitAdjoint()` without `stop_early=True`.
     """
 
     iterations: int = eqx.field(default=15, static=True, converter=python_scalar)
@@ -148,7 +152,8 @@ class FixedG(AbstractSolver):
     anderson: int = eqx.field(default=0, static=True, converter=python_scalar)
     regularisation: float = eqx.field(default=1e-10, static=True, converter=python_scalar)
     unroll: int = eqx.field(default=32, static=True, converter=python_scalar)
-    adjoint: str = eqx.field(default="unrolled", static=True)
+    adjoint: optx.AbstractAdjoint = eqx.field(default=optx.RecursiveCheckpointAdjoint(),
+                                              static=True, converter=checked_in_init)
 
     def __check_init__(self):
         check_count(self, "iterations")
@@ -156,15 +161,33 @@ class FixedG(AbstractSolver):
         check_count(self, "unroll", 0)
         check_tolerance(self, "rtol")
         check_tolerance(self, "regularisation")
-        if self.adjoint not in ADJOINTS:
-            raise ValueError(f"FixedG(adjoint={self.adjoint!r}): choose one of {ADJOINTS}.")
-        if self.adjoint == "implicit" and not self.stop_early:
+        if isinstance(self.adjoint, str):
+            name = "ImplicitAdjoint" if self.adjoint == "implicit" else \
+                "RecursiveCheckpointAdjoint"
+            raise TypeError(f"FixedG(adjoint={self.adjoint!r}): an adjoint is an optimistix "
+                            f"object; write adjoint=optx.{name}() (import optimistix as "
+                            "optx).")
+        if not isinstance(self.adjoint, (optx.RecursiveCheckpointAdjoint,
+                                         optx.ImplicitAdjoint)):
+            raise TypeError(f"FixedG(adjoint={self.adjoint!r}): choose "
+                            "optx.RecursiveCheckpointAdjoint() (through the iterations) or "
+                            "optx.ImplicitAdjoint() (at the minimum).")
+        if self._implicit and not isinstance(self.adjoint.linear_solver, lx.AutoLinearSolver):
             raise ValueError(
-                "FixedG(adjoint='implicit') differentiates at a minimum, which a fixed "
-                f"number of iterations ({self.iterations}) does not reach: add "
+                f"FixedG(adjoint={self.adjoint!r}): the implicit adjoint solves with the "
+                "energy's Hessian by conjugate gradients preconditioned by the rig's factor; "
+                "write optx.ImplicitAdjoint() without a linear_solver.")
+        if self._implicit and not self.stop_early:
+            raise ValueError(
+                "FixedG(adjoint=optx.ImplicitAdjoint()) differentiates at a minimum, which a "
+                f"fixed number of iterations ({self.iterations}) does not reach: add "
                 "stop_early=True (with enough iterations, or anderson=...), or keep the "
-                "default adjoint='unrolled'."
+                "default adjoint, optx.RecursiveCheckpointAdjoint()."
             )
+
+    @property
+    def _implicit(self) -> bool:
+        return isinstance(self.adjoint, optx.ImplicitAdjoint)
 
     def _advance(self, energy, factor, targets, init):
         """One step `(v, memory) -> (next v, G b(v), memory)` on the coordinate rows `V^T`
@@ -201,7 +224,7 @@ class FixedG(AbstractSolver):
         return advance, _anderson_init(self.anderson, init.size, init.dtype)
 
     def solve(self, energy, factor, targets, init):
-        if self.adjoint == "unrolled":
+        if not self._implicit:
             if self.anderson or self.stop_early:
                 return self._iterate(energy, factor, targets, init)
             # Under jax.vmap over targets, every frame runs in one loop, frames last.
@@ -341,7 +364,7 @@ class FixedG(AbstractSolver):
 
     def fixed_steps(self, steps):
         return dataclasses.replace(self, iterations=check_steps(self, steps), stop_early=False,
-                                   adjoint="unrolled")
+                                   adjoint=optx.RecursiveCheckpointAdjoint())
 
     def history(self, energy, factor, targets, init, steps):
         advance, memory0 = self._advance(energy, factor, targets, init)

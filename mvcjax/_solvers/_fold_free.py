@@ -16,11 +16,18 @@ from ._base import (
     SolveInfo,
     check_count,
     check_tolerance,
+    checked_in_init,
     converged_and_finite,
     python_scalar,
 )
 from ._least_squares import ScaledProblem, default_tol
-from ._normal_cg import GaussNewtonMatrix, _dot, conjugate_gradient, hessian_solve
+from ._normal_cg import (
+    GaussNewtonMatrix,
+    StructuredCG,
+    _dot,
+    conjugate_gradient,
+    hessian_solve,
+)
 
 # Armijo's sufficient decrease, and how many times a step may be halved.
 _ARMIJO = 1e-4
@@ -205,12 +212,13 @@ class FoldFree(AbstractSolver):
             objective falling by less than `rtol` of itself (default 1e-10 in float64,
             1e-5 in float32).
         max_steps: the step budget; `converged` is false if it ran out.
-        cg_steps, cg_rtol: the conjugate gradients' budget per step and relative
-            tolerance.
+        linear_solver: each step's conjugate gradients: their budget and relative
+            tolerance (`mvcjax.advanced.StructuredCG`; always deflated by the previous
+            step).
 
     Refused, naming the option: `barrier` not a finite number > 0, `threshold` outside
     (0, 1], tolerances other than None or a finite number >= 0, `max_steps` or
-    `cg_steps` not a whole number >= 1.
+    a `linear_solver` other than a `StructuredCG`.
     """
 
     barrier: float = eqx.field(default=1.0, static=True, converter=python_scalar)
@@ -218,8 +226,8 @@ class FoldFree(AbstractSolver):
     rtol: float | None = eqx.field(default=None, static=True, converter=python_scalar)
     atol: float | None = eqx.field(default=None, static=True, converter=python_scalar)
     max_steps: int = eqx.field(default=256, static=True, converter=python_scalar)
-    cg_steps: int = eqx.field(default=8, static=True, converter=python_scalar)
-    cg_rtol: float = eqx.field(default=1e-2, static=True, converter=python_scalar)
+    linear_solver: StructuredCG = eqx.field(default=StructuredCG(steps=8), static=True,
+                                            converter=checked_in_init)
 
     def __check_init__(self):
         check_tolerance(self, "barrier")
@@ -233,8 +241,9 @@ class FoldFree(AbstractSolver):
         for name in ("rtol", "atol"):
             check_tolerance(self, name, "1e-10 in float64, 1e-5 in float32")
         check_count(self, "max_steps")
-        check_count(self, "cg_steps")
-        check_tolerance(self, "cg_rtol")
+        if not isinstance(self.linear_solver, StructuredCG):
+            raise TypeError(f"FoldFree(linear_solver={self.linear_solver!r}): give a "
+                            "mvcjax.advanced.StructuredCG(steps=..., rtol=...).")
 
     def _problem(self, energy, targets, shape):
         """The scaled residuals and the barriers (the control mesh's, and the shape
@@ -287,8 +296,8 @@ class FoldFree(AbstractSolver):
             d = y - last_y
             normal_d = model.normal_point - last_normal
             observed = _dot(d, gradient - last_gradient)
-            x, _ = conjugate_gradient(matvec, gradient, inverse.mv, self.cg_rtol,
-                                      self.cg_steps,
+            x, _ = conjugate_gradient(matvec, gradient, inverse.mv, self.linear_solver.rtol,
+                                      self.linear_solver.steps,
                                       (d, matvec(d, normal_d), normal_d, observed))
             # Conjugate gradients on a positive semidefinite matrix give a descent
             # direction; the gradient itself is the fallback if they broke down.

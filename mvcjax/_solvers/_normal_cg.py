@@ -43,6 +43,7 @@ import jax.numpy as jnp
 import lineax as lx
 from jaxtyping import Array, Complex, Float
 
+from ._base import check_count, check_tolerance, python_scalar
 from ._least_squares import Linearisation, ScaledProblem, default_tol
 
 
@@ -290,3 +291,32 @@ class HessianCG(lx.AbstractLinearSolver):
 
     def assume_full_rank(self):
         return True
+
+
+class StructuredCG(eqx.Module):
+    """Each Gauss-Newton step's linear solve with the energy's structure: conjugate
+    gradients on the Gauss-Newton matrix, kept as the rig's constant normal matrix less
+    the rotation terms and preconditioned by that constant matrix
+    (`GaussNewtonMatrix`), in optimistix's step with the residuals linearised in closed
+    form. The default `linear_solver` of `GaussNewton`, `LevenbergMarquardt` and
+    `Dogleg`; a lineax solver (`lx.Cholesky()`) materialises the Jacobian instead.
+
+    Attributes:
+        steps: the conjugate-gradient budget per step (a truncated Newton step).
+        rtol: its relative tolerance, in `[0, 1)`.
+        deflate: also search along the previous step (deflated by it), with the model's
+            curvature along it raised to the curvature observed over it where that is
+            larger (`GaussNewtonMatrix.solve`): far fewer steps for a little more work
+            per step (`benchmarks/solvers.py` compares). `False` solves with the
+            Gauss-Newton matrix itself (exact steps with a large `steps`).
+    """
+
+    steps: int = eqx.field(default=4, static=True, converter=python_scalar)
+    rtol: float = eqx.field(default=1e-2, static=True, converter=python_scalar)
+    deflate: bool = eqx.field(default=True, static=True)
+
+    def __check_init__(self):
+        check_count(self, "steps")
+        check_tolerance(self, "rtol")
+        if not self.rtol < 1:
+            raise ValueError(f"StructuredCG(rtol={self.rtol}): a relative decrease, in [0, 1).")

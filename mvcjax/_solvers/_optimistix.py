@@ -18,6 +18,7 @@ from ._base import (
     check_count,
     check_steps,
     check_tolerance,
+    checked_in_init,
     python_scalar,
 )
 from ._descents import (
@@ -33,10 +34,12 @@ from ._least_squares import (
     check_jacobian_fits,
     default_tol,
 )
-from ._normal_cg import HessianCG
+from ._normal_cg import HessianCG, StructuredCG
 
-LINEAR_SOLVERS = ("cg", "cholesky")
-_CHOLESKY = lx.Normal(lx.Cholesky())
+
+def _least_squares_solver(solver: lx.AbstractLinearSolver) -> lx.AbstractLinearSolver:
+    # Cholesky and CG need a square, positive definite operator: the Jacobian's normal one.
+    return lx.Normal(solver) if isinstance(solver, (lx.Cholesky, lx.CG)) else solver
 
 
 class _OptimistixLeastSquares(AbstractSolver):
@@ -46,76 +49,63 @@ class _OptimistixLeastSquares(AbstractSolver):
         rtol, atol: optimistix's Cauchy tolerances on coordinates scaled to the unit
             bounding-box diagonal (default 1e-10 in float64, 1e-5 in float32).
         max_steps: the step budget; `converged` is false if it ran out.
-        linear_solver: how each step's linear least-squares problem is solved.
-            `"cg"` (default) uses the structure: conjugate gradients on the
-            Gauss-Newton matrix kept as the rig's constant normal matrix less the
-            rotation terms, preconditioned by that constant matrix (see
-            `GaussNewtonMatrix`, and the structured descents), in optimistix's
-            Gauss-Newton step with the residuals linearised in closed form
-            (`_StructuredGaussNewton`). `"cholesky"` materialises the
-            Jacobian by forward-mode autodiff and factors its normal matrix: exact
-            steps, each far more expensive (`benchmarks/solvers.py` compares them),
-            refused above 1 GiB.
-        cg_steps, cg_rtol: the conjugate-gradient budget per step and its relative
-            tolerance (`"cg"` only).
-        cg_deflate: also search along the previous step in each step's conjugate
-            gradients (deflated by it, `"cg"` only), with the model's curvature along it
-            raised to the curvature observed over it where that is larger
-            (`GaussNewtonMatrix.solve`). With it, 4 iterations a step reach the energy
-            gap of the benchmark on the horse in 32 to 35 steps; without, 4 take 110 to
-            122 and 8 take 28 to 55. `False` solves with the Gauss-Newton matrix itself
-            (exact steps with a large `cg_steps`).
+        linear_solver: how each step's linear least-squares problem is solved:
+            `mvcjax.advanced.StructuredCG()` (default) uses the energy's structure (see
+            there); a lineax solver such as `lx.Cholesky()` materialises the Jacobian
+            by forward-mode autodiff and solves with it densely (through its normal
+            matrix for Cholesky and CG): exact steps, each far more expensive
+            (`benchmarks/solvers.py` compares them), refused above 1 GiB.
 
     Refused, naming the option (TypeError for a wrong type, ValueError for a bad
-    value): tolerances other than None or a finite number >= 0, `max_steps` or
-    `cg_steps` not a whole number >= 1, `cg_rtol` outside `[0, 1)`, an unknown
-    `linear_solver`.
+    value): tolerances other than None or a finite number >= 0, `max_steps` not a
+    whole number >= 1, a `linear_solver` that is neither.
     """
 
     rtol: float | None = eqx.field(default=None, static=True, converter=python_scalar)
     atol: float | None = eqx.field(default=None, static=True, converter=python_scalar)
     max_steps: int = eqx.field(default=256, static=True, converter=python_scalar)
-    linear_solver: str = eqx.field(default="cg", static=True)
-    cg_steps: int = eqx.field(default=4, static=True, converter=python_scalar)
-    cg_rtol: float = eqx.field(default=1e-2, static=True, converter=python_scalar)
-    cg_deflate: bool = eqx.field(default=True, static=True)
+    linear_solver: StructuredCG | lx.AbstractLinearSolver = eqx.field(
+        default=StructuredCG(), static=True, converter=checked_in_init)
 
     def __check_init__(self):
         for name in ("rtol", "atol"):
             check_tolerance(self, name, "1e-10 in float64, 1e-5 in float32")
         check_count(self, "max_steps")
-        check_count(self, "cg_steps")
-        if self.linear_solver not in LINEAR_SOLVERS:
-            raise ValueError(
-                f"{type(self).__name__}(linear_solver={self.linear_solver!r}): choose one of "
-                f"{LINEAR_SOLVERS}."
-            )
-        check_tolerance(self, "cg_rtol")
-        if not self.cg_rtol < 1:
-            raise ValueError(
-                f"{type(self).__name__}(cg_rtol={self.cg_rtol}): a relative decrease, in [0, 1)."
-            )
+        name = type(self).__name__
+        fix = {"cg": "mvcjax.advanced.StructuredCG()", "cholesky": "lx.Cholesky()"}
+        if isinstance(self.linear_solver, str):
+            raise TypeError(
+                f"{name}(linear_solver={self.linear_solver!r}): a linear solver is an object; "
+                f"write linear_solver={fix.get(self.linear_solver, fix['cg'])} "
+                "(import lineax as lx).")
+        if not isinstance(self.linear_solver, (StructuredCG, lx.AbstractLinearSolver)):
+            raise TypeError(f"{name}(linear_solver={self.linear_solver!r}): give "
+                            f"{fix['cg']} or a lineax solver such as {fix['cholesky']}.")
 
-    def _parts(self) -> tuple[type, optx.AbstractDescent, optx.AbstractSearch]:
-        """The structured descent's class (`"cg"`), optimistix's own descent with the
-        dense linear solver (`"cholesky"`), and the search."""
+    def _parts(self, dense: lx.AbstractLinearSolver
+               ) -> tuple[type, optx.AbstractDescent, optx.AbstractSearch]:
+        """The structured descent's class, optimistix's own descent with the `dense`
+        linear solver, and the search."""
         raise NotImplementedError
 
     def _configured(self, problem: ScaledProblem, factor, dtype):
-        if self.linear_solver == "cholesky":
-            check_jacobian_fits(problem.energy, dtype,
-                                f"{type(self).__name__}(linear_solver='cholesky')",
-                                f"the default {type(self).__name__}(linear_solver='cg') or ")
-        structured, descent, search = self._parts()
+        linear = self.linear_solver
+        structured_cg = isinstance(linear, StructuredCG)
+        # The dense descent is only built, not run, beside the structured one.
+        dense = lx.Normal(lx.Cholesky()) if structured_cg else _least_squares_solver(linear)
+        structured, descent, search = self._parts(dense)
         tols = {"rtol": default_tol(dtype) if self.rtol is None else self.rtol,
                 "atol": default_tol(dtype) if self.atol is None else self.atol}
-        if self.linear_solver == "cg":
+        if structured_cg:
             return _StructuredGaussNewton(
                 **tols, descent=structured(
                     problem=problem, normal=factor.normal_operator(),
-                    preconditioner=factor.normal_inverse_operator(), cg_steps=self.cg_steps,
-                    cg_rtol=self.cg_rtol, cg_deflate=self.cg_deflate),
+                    preconditioner=factor.normal_inverse_operator(), cg_steps=linear.steps,
+                    cg_rtol=linear.rtol, cg_deflate=linear.deflate),
                 search=search, problem=problem)
+        check_jacobian_fits(problem.energy, dtype,
+                            f"{type(self).__name__}(linear_solver={linear!r})",
+                            f"the default {type(self).__name__}() or ")
         return _GaussNewtonFamily(**tols, descent=descent, search=search)
 
     def solve(self, energy, factor, targets, init):
@@ -272,7 +262,7 @@ class GaussNewton(_OptimistixLeastSquares):
     Gradients through the solve are implicit (optimistix's `ImplicitAdjoint`).
 
     Attributes:
-        rtol, atol, max_steps, linear_solver, cg_steps, cg_rtol: see the shared
+        rtol, atol, max_steps, linear_solver: see the shared
             options (`mvcjax._solvers._optimistix._OptimistixLeastSquares`).
         line_search: backtrack (Armijo) when the full step does not lower the energy
             enough; `False` takes every full step, as `optimistix.GaussNewton` does.
@@ -280,9 +270,9 @@ class GaussNewton(_OptimistixLeastSquares):
 
     line_search: bool = eqx.field(default=True, static=True)
 
-    def _parts(self):
+    def _parts(self, dense):
         search = optx.BacktrackingArmijo() if self.line_search else optx.LearningRate(1.0)
-        return StructuredNewtonDescent, optx.NewtonDescent(linear_solver=_CHOLESKY), search
+        return StructuredNewtonDescent, optx.NewtonDescent(linear_solver=dense), search
 
 
 class LevenbergMarquardt(_OptimistixLeastSquares):
@@ -295,8 +285,8 @@ class LevenbergMarquardt(_OptimistixLeastSquares):
     by `N^{-1}` alone, which suits the small damping near a solution.
     """
 
-    def _parts(self):
-        return (StructuredDampedNewtonDescent, optx.DampedNewtonDescent(linear_solver=_CHOLESKY),
+    def _parts(self, dense):
+        return (StructuredDampedNewtonDescent, optx.DampedNewtonDescent(linear_solver=dense),
                 optx.ClassicalTrustRegion())
 
 
@@ -310,6 +300,6 @@ class Dogleg(_OptimistixLeastSquares):
     diagonal.
     """
 
-    def _parts(self):
-        return (StructuredDoglegDescent, DoglegDescent(linear_solver=_CHOLESKY),
+    def _parts(self, dense):
+        return (StructuredDoglegDescent, DoglegDescent(linear_solver=dense),
                 optx.ClassicalTrustRegion())
