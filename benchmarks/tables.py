@@ -13,7 +13,8 @@ fails, naming the page and the table, where a page differs from what its results
 The pages and their tables: `docs/benchmarks.md` (deform, solvers, frames, throughput,
 interact, render), `docs/paper.md` (table1), `docs/folds.md` (folds, written by
 `folds.format_tables` as `benchmarks/folds.py --table ... --docs ...` writes it) and
-`docs/robustness.md` (robustness, once its results file exists).
+`docs/robustness.md` (robustness, once its results file exists) and `docs/guide.md`
+(jit-method, in its design notes).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import folds
+import jit_method
 import robustness
 import solvers
 import table1
@@ -335,6 +337,11 @@ def table1_table(data: dict, source: str) -> str:
         "", table1.format_table(data["rows"])])
 
 
+def jit_method_table(data: dict, source: str) -> str:
+    """`benchmarks/jit_method.py`: the ways to jit a rig's frame."""
+    return _measured_on(data, source) + "\n\n" + jit_method.format_table(data)
+
+
 def robustness_table(data: dict | None, source: str) -> str:
     """`benchmarks/robustness.py`: what happened to the hostile cases."""
     if data is None:
@@ -383,6 +390,7 @@ TABLES = [
     Table("docs/folds.md", "folds", _results("folds"), lambda data, _: folds.format_tables(data)),
     Table("docs/robustness.md", "robustness", _results("robustness"), robustness_table,
           optional=True),
+    Table("docs/guide.md", "jit-method", _results("jit_method"), jit_method_table),
 ]
 
 
