@@ -13,7 +13,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Float
 
-from ._checks import as_array, check_solver, kind_of
+from ._checks import as_array, check_solver, kind_of, whole_number
 from ._rig import Rig, solve_in_frame
 from ._skinning import skin_frames_into
 from ._solvers import DEFAULT_SOLVER, AbstractSolver
@@ -156,10 +156,7 @@ def deform_frames(
             f"targets must have shape (frames, {h}, 2), one (x, y) per handle and frame, got "
             f"{targets.shape}; for a single frame use rig.deform(targets)."
         )
-    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)):
-        raise TypeError(f"chunk must be a whole number of frames, got {chunk!r}.")
-    if chunk < 1:
-        raise ValueError(f"chunk must be a positive number of frames, got {chunk}.")
+    chunk = whole_number(chunk, "chunk", what=" of frames")
     if targets.shape[0] == 0:
         raise ValueError("targets hold no frames (shape (0, h, 2)); give at least one frame.")
     if devices is not None:

@@ -73,3 +73,14 @@ def finite_when_traced(array, message: str):
     import jax.numpy as jnp
 
     return eqx.error_if(array, ~jnp.all(jnp.isfinite(array)), message)
+
+
+def whole_number(value, name: str, minimum: int = 1, what: str = "") -> int:
+    """`value` as an int if it is a whole number (a Python or numpy int, not a bool or a
+    float) of at least `minimum`: otherwise a TypeError for the type, a ValueError for
+    the value, naming `name` (`what` says what it counts, e.g. " of frames")."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{name} must be a whole number{what} >= {minimum}, got {value!r}.")
+    if value < minimum:
+        raise ValueError(f"{name} must be a whole number{what} >= {minimum}, got {value!r}.")
+    return int(value)

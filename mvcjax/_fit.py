@@ -25,7 +25,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
-from ._checks import check_solver, kind_of
+from ._checks import check_solver, kind_of, whole_number
 from ._render import Renderer, _picture, check_drawn_mesh, in_window
 from ._rig import Rig
 from ._solvers import DEFAULT_SOLVER, AbstractSolver
@@ -388,9 +388,7 @@ def fit_targets(
     _check_pair(rig, renderer)
     channels = _check_channels(channels)
     solver = _check_solver(solver)
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
-        raise ValueError(f"steps must be a whole number >= 1 (the most solver steps per "
-                         f"stage), got {steps!r}.")
+    steps = whole_number(steps, "steps", what=" (the most solver steps per stage)")
     try:
         blur_values = np.atleast_1d(np.asarray(blurs, np.float64))
     except (TypeError, ValueError):

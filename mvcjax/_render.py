@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from ._checks import as_points, kind_of
+from ._checks import as_points, kind_of, whole_number
 from ._module import JittableModule
 from ._topology import on_boundary
 from ._xla import materialise
@@ -326,8 +326,7 @@ class Renderer(JittableModule):
         tile, rest = _tiling(vertices, faces, boundary, window, rows, cols, antialias)
         if budget is None:
             budget = 16 * rest + 4 * -(-rows // tile) * -(-cols // tile)
-        if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1:
-            raise ValueError(f"budget must be a whole number >= 1, got {budget!r}.")
+        budget = whole_number(budget, "budget")
         if alpha not in ("mesh", "picture"):
             raise ValueError(f"alpha must be 'mesh' or 'picture', got {alpha!r}.")
         premultiplied = _texture(picture, alpha)
@@ -408,8 +407,7 @@ class Renderer(JittableModule):
             # distances, and each pixel's two layers of shading.
             working = 40 * _CHUNK * self.tile**2 + 300 * rows * cols
             chunk = int(np.clip(2**28 // working, 1, 64))
-        if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
-            raise ValueError(f"chunk must be a whole number >= 1, got {chunk!r}.")
+        chunk = whole_number(chunk, "chunk", what=" of frames")
         out = np.empty((len(frames), *self.shape, 4), np.uint8)
         with progress_bar(len(frames), progress, "rendering") as bar:
             for begin in range(0, len(frames), chunk):

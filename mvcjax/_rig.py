@@ -11,7 +11,14 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
 from . import _coordinates as coords, _meshing as meshing, _topology as topology
-from ._checks import as_array, as_points, check_solver, finite_when_traced, kind_of
+from ._checks import (
+    as_array,
+    as_points,
+    check_solver,
+    finite_when_traced,
+    kind_of,
+    whole_number,
+)
 from ._control import PaperControl, as_control
 from ._energy import Energy, Weights, check_weights, total_energy
 from ._factor import AbstractFactor, FactorBySize, as_factor_method
@@ -277,9 +284,7 @@ class Rig(JittableModule):
         points, bones, _ = check_handles(shape, handles)
         weights = Weights() if weights is None else check_weights(weights)
         skinning = as_skinning(skinning)
-        if isinstance(max_triangles, bool) or not isinstance(max_triangles, (int, np.integer)) \
-                or max_triangles < 1:
-            raise ValueError(f"max_triangles must be a positive integer, got {max_triangles!r}.")
+        max_triangles = whole_number(max_triangles, "max_triangles")
         control = as_control(control)
         factor = as_factor_method(factor)
 
@@ -506,10 +511,7 @@ class Rig(JittableModule):
             init: the start, see `Rig.start`.
         """
         check_solver(solver)
-        if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)):
-            raise TypeError(f"steps must be an int, got {steps!r}.")
-        if steps < 1:
-            raise ValueError(f"steps must be at least 1, got {steps}.")
+        steps = whole_number(steps, "steps")
         local = self.frame.to_local(self._check_targets(targets))
         history = solver.history(self.energy, self.factor, self.handles.pinned_targets(local),
                                  self._local_start(local, self._check_init(init)), steps)

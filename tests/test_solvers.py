@@ -354,7 +354,7 @@ def test_deflating_by_the_previous_step_needs_far_fewer_steps(horse_rig, name):
 
 
 def test_energy_history_errors(horse_rig):
-    with pytest.raises(ValueError, match="at least 1"):
+    with pytest.raises(ValueError, match="steps must be a whole number >= 1"):
         horse_rig.energy_history(horse_rig.handle_positions, mvcjax.FixedG(), 0)
     with pytest.raises(TypeError, match="mvcjax solver"):
         horse_rig.energy_history(horse_rig.handle_positions, "fixed_g", 5)
