@@ -62,11 +62,17 @@ class Weights(eqx.Module):
     scaled to a fixed largest value (`normalised`), so `Weights(1e-30, 1e-30, 1e-30,
     1e-28)` deforms exactly like the default, with energies 1e-30 times as large.
 
-    Refused (ValueError, checked where the weights are made, not under `jit`): a weight
-    that is not a finite real number >= 0; `handle` zero; `laplacian`, `mvc` and
-    `length` all zero; two positive weights more than `MAX_WEIGHT_RATIO` (1e8) apart;
-    a positive weight outside `WEIGHT_RANGE` (1e-36 to 1e36, float32's range).
-    Something other than a `Weights` is refused by `check_weights`.
+    A single shape term is fine (`Weights(mvc=0, length=0)` deforms by the Laplacian
+    alone): where it leaves vertices free, the Laplacian and mean value terms keep a
+    small share of the largest shape weight to decide them (`tie_broken`).
+
+    Refused (ValueError where the weights are made; TypeError for a weight that is not
+    a number): a weight that is not a finite real number >= 0; `handle` zero;
+    `laplacian`, `mvc` and `length` all zero; two positive weights more than
+    `MAX_WEIGHT_RATIO` (1e8) apart; a positive weight outside `WEIGHT_RANGE` (1e-36 to
+    1e36, float32's range). Traced weights (under `jit` or `grad`) are checked when the
+    program runs, by `Rig.with_weights` (`verified`). Something other than a `Weights`
+    is refused by `check_weights`.
     """
 
     laplacian: Float[Array, ""] = eqx.field(default=1.0, converter=_weight("laplacian"))
