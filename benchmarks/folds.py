@@ -149,20 +149,22 @@ class Family:
     poses: list
 
 
-def _arm(degrees):
+def _turn_one(moved: int, about: int, degrees: float):
+    """Targets with target `moved` turned `degrees` counter-clockwise about target
+    `about`, the others at rest."""
     def targets(rest):
         t = rest.copy()
-        t[5] = turn(rest[5], rest[4], degrees)  # the right wrist about the right shoulder
+        t[moved] = turn(rest[moved], rest[about], degrees)
         return t
     return targets
+
+
+def _arm(degrees):
+    return _turn_one(5, 4, degrees)  # the right wrist about the right shoulder
 
 
 def _kick(degrees):
-    def targets(rest):
-        t = rest.copy()
-        t[7] = turn(rest[7], rest[6], degrees)  # the right ankle about the right hip
-        return t
-    return targets
+    return _turn_one(7, 6, degrees)  # the right ankle about the right hip
 
 
 def _overhead(degrees, both=True):
@@ -176,11 +178,7 @@ def _overhead(degrees, both=True):
 
 
 def _curl_leg(degrees):
-    def targets(rest):
-        t = rest.copy()
-        t[5] = turn(rest[5], rest[4], -degrees)  # the hoof back (clockwise) about the knee
-        return t
-    return targets
+    return _turn_one(5, 4, -degrees)  # the hoof back (clockwise) about the knee
 
 
 def _bend(levels, degrees, twist=False):
