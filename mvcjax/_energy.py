@@ -21,8 +21,8 @@ def _safe_normalise(v: Float[Array, "m 2"]) -> Float[Array, "m 2"]:
 # in the normal matrix (float32 holds 7 digits, its squares 14).
 MAX_WEIGHT_RATIO = 1e8
 NORMAL_WEIGHT = 100.0
-# The least share of the largest shape term's weight that the Laplacian and mean value
-# terms keep (`Weights.tie_broken`).
+# The share of the largest shape term's weight that a zero Laplacian or mean value weight
+# is raised to (`Weights.tie_broken`).
 TIE_WEIGHT = 1e-4
 # Any positive weight, so that it and its square root stay normal float32 numbers.
 WEIGHT_RANGE = (1e-36, 1e36)
@@ -63,8 +63,8 @@ class Weights(eqx.Module):
     1e-28)` deforms exactly like the default, with energies 1e-30 times as large.
 
     A single shape term is fine (`Weights(mvc=0, length=0)` deforms by the Laplacian
-    alone): where it leaves vertices free, the Laplacian and mean value terms keep a
-    small share of the largest shape weight to decide them (`tie_broken`).
+    alone): where it leaves vertices free, a zero Laplacian or mean value weight is
+    raised to a small share of the largest shape weight to decide them (`tie_broken`).
 
     Refused (ValueError where the weights are made; TypeError for a weight that is not
     a number): a weight that is not a finite real number >= 0; `handle` zero;
@@ -132,8 +132,7 @@ class Weights(eqx.Module):
         if not any(isinstance(v, jax.core.Tracer) for v in values):
             return self
         bad = (~jnp.all(jnp.isfinite(jnp.stack(values))) | (jnp.min(jnp.stack(values)) < 0)
-               | (self.handle <= 0) | (jnp.maximum(jnp.maximum(self.laplacian, self.mvc),
-                                                   self.length) <= 0))
+               | (self.handle <= 0) | (self.largest_shape() <= 0))
         return jax.tree.map(lambda w: eqx.error_if(
             w, bad, "Weights given under jit or grad must be finite numbers >= 0, with a "
             "positive handle weight and at least one positive shape term (laplacian, mvc or "
@@ -154,20 +153,26 @@ class Weights(eqx.Module):
         factor = NORMAL_WEIGHT / self.largest()
         return jax.tree.map(lambda w: w * factor, self.tie_broken())
 
+    def largest_shape(self) -> Float[Array, ""]:
+        """The largest of the Laplacian, mean value and edge-length weights."""
+        return jnp.maximum(jnp.maximum(self.laplacian, self.mvc), self.length)
+
     def tie_broken(self) -> Weights:
-        """The weights with the Laplacian and mean value terms kept at least
-        `TIE_WEIGHT` times the largest shape term's weight.
+        """The weights with a Laplacian or mean value weight of zero raised to
+        `TIE_WEIGHT` times the largest shape term's weight (a positive weight, however
+        small, is the user's and stays).
 
         Each term alone leaves some vertices free: the Laplacian holds only the outline,
         the mean value rows only the inner vertices, and the edge lengths (every edge
         off the outline) no corner of the outline that no inner edge reaches. With such
-        a term at zero the energy would have a valley of minima; the tie-break picks the
-        valley's point that the term picks as its weight goes to zero (the inner
+        a term at zero the energy would have a valley of minima; the small tie picks a
+        point near the one the term picks as its weight goes to zero (the inner
         vertices follow the outline by their mean value coordinates, the outline keeps
         its detail)."""
-        tie = TIE_WEIGHT * jnp.maximum(jnp.maximum(self.laplacian, self.mvc), self.length)
+        tie = TIE_WEIGHT * self.largest_shape()
         return eqx.tree_at(lambda w: (w.laplacian, w.mvc), self,
-                           (jnp.maximum(self.laplacian, tie), jnp.maximum(self.mvc, tie)))
+                           (jnp.where(self.laplacian > 0, self.laplacian, tie),
+                            jnp.where(self.mvc > 0, self.mvc, tie)))
 
 
 def check_weights(weights, name: str = "weights") -> Weights:
