@@ -186,6 +186,68 @@ def check_weights(weights, name: str = "weights") -> Weights:
     raise TypeError(f"{name} must be an mvcjax.Weights, got {got}; write {fix}.")
 
 
+class Term(eqx.Module):
+    """One term of the energy (6), declared as data: `weight * |D V - target(V)|^2`.
+
+    Its rows `D` are a stencil (each row a few vertex indices and coefficients), and
+    its target is one of three kinds, which is all a solver needs to know:
+
+    - `Term.turned`: each row's current vector turned to its rest length `length`, a
+      rotation the local step of the fixed-G iteration recomputes (the Laplacian L
+      and the edge lengths H);
+    - `Term.linear`: zero, a constant linear term (the mean value rows M);
+    - `Term.pinned`: the handle targets `U`, one row each (the handles C).
+
+    The residuals, the fixed-G local step and global factor, the least-squares
+    linearisation and the Gauss-Newton matrix are all derived from the energy's terms
+    (`Energy.terms`), so a new term is one declaration.
+
+    Attributes:
+        name: the term's name (the weight's, for the built-in ones).
+        stencil: its rows.
+        weight: its weight (a scalar).
+        length: `(m,)` the rows' rest lengths (`turned` terms; None otherwise).
+        pinned: whether its rows are measured from the handle targets.
+    """
+
+    name: str = eqx.field(static=True)
+    stencil: Stencil
+    weight: Float[Array, ""]
+    length: Float[Array, " m"] | None = None
+    pinned: bool = eqx.field(default=False, static=True)
+
+    @classmethod
+    def turned(cls, name: str, stencil: Stencil, weight, length) -> Term:
+        return cls(name, stencil, jnp.asarray(weight), length)
+
+    @classmethod
+    def turned_from(cls, name: str, stencil: Stencil, weight, rest: Float[Array, "n 2"]
+                    ) -> Term:
+        """A turned term whose rest lengths are its rows' lengths at `rest`."""
+        return cls.turned(name, stencil, weight,
+                          jnp.linalg.norm(stencil.vectors(rest), axis=1))
+
+    @classmethod
+    def linear(cls, name: str, stencil: Stencil, weight) -> Term:
+        return cls(name, stencil, jnp.asarray(weight))
+
+    @classmethod
+    def pinned_to_targets(cls, name: str, stencil: Stencil, weight) -> Term:
+        return cls(name, stencil, jnp.asarray(weight), pinned=True)
+
+    @property
+    def count(self) -> int:
+        return self.stencil.count
+
+    def residual(self, vertices: Float[Array, "n 2"], targets: Float[Array, "h 2"] | None
+                 ) -> Float[Array, "m 2"]:
+        """`D V - target(V)`, unweighted."""
+        v = self.stencil.vectors(vertices)
+        if self.length is not None:
+            return v - self.length[:, None] * _safe_normalise(v)
+        return v - targets if self.pinned else v
+
+
 class Energy(eqx.Module):
     """Everything the energy (6) needs: the rest control mesh and each term's data.
 
@@ -204,6 +266,8 @@ class Energy(eqx.Module):
             the energy: what a fold is counted on, and what `FoldFree` keeps unfolded).
         weights: the term weights.
         scale: rest bounding-box diagonal, the unit of tolerances.
+        extra: further terms, after the four of the paper (`Term`; their weights
+            count as given, beside `weights`).
     """
 
     rest: Float[Array, "n 2"]
@@ -218,99 +282,84 @@ class Energy(eqx.Module):
     faces: Int[Array, "f 3"]
     weights: Weights
     scale: Float[Array, ""]
+    extra: tuple[Term, ...] = ()
 
     @property
     def num_vertices(self) -> int:
         return self.rest.shape[0]
 
-    def laplacian_stencil(self) -> Stencil:
-        """`L`: each polygon vertex less the mean of its two loop neighbours."""
-        return Stencil.fixed(self.laplacian_index, LAPLACIAN, self.rest.dtype)
+    def terms(self, normalised: bool = False) -> tuple[Term, ...]:
+        """The energy's terms, in its order: L, M, H, C (eq. 7), then any `extra`.
 
-    def mvc_stencil(self) -> Stencil:
-        """`M`: each inner vertex less the mean value combination of its 1-ring."""
-        return Stencil(jnp.concatenate([self.mvc_centre[:, None], self.mvc_ring], axis=1),
-                       jnp.concatenate([jnp.ones_like(self.mvc_weight[:, :1]),
-                                        -self.mvc_weight], axis=1))
+        With `normalised`, the weights are those the solvers use
+        (`Weights.normalised`), the extra terms' scaled alike: the same minimisers.
+        """
+        w = self.weights.normalised() if normalised else self.weights
+        factor = NORMAL_WEIGHT / self.weights.largest() if normalised else 1.0
+        dtype = self.rest.dtype
+        mvc = Stencil(jnp.concatenate([self.mvc_centre[:, None], self.mvc_ring], axis=1),
+                      jnp.concatenate([jnp.ones_like(self.mvc_weight[:, :1]),
+                                       -self.mvc_weight], axis=1))
+        return (
+            Term.turned("laplacian", Stencil.fixed(self.laplacian_index, LAPLACIAN, dtype),
+                        w.laplacian, self.laplacian_length),
+            Term.linear("mvc", mvc, w.mvc),
+            Term.turned("length", Stencil.fixed(self.edges, EDGE, dtype), w.length,
+                        self.edge_length),
+            Term.pinned_to_targets("handle", Stencil.fixed(self.handles[:, None], HANDLE,
+                                                           dtype), w.handle),
+            *(eqx.tree_at(lambda t: t.weight, t, t.weight * factor) for t in self.extra),
+        )
 
-    def edge_stencil(self) -> Stencil:
-        """`H`: the edge vectors `v_i - v_j` of `E_CG`."""
-        return Stencil.fixed(self.edges, EDGE, self.rest.dtype)
+    def term(self, name: str) -> Term:
+        """The term called `name` (unnormalised weights)."""
+        return next(t for t in self.terms() if t.name == name)
 
-    def handle_stencil(self) -> Stencil:
-        """`C`: each handle's vertex."""
-        return Stencil.fixed(self.handles[:, None], HANDLE, self.rest.dtype)
+    def stencils(self) -> tuple[Stencil, ...]:
+        """The rows of every term, in the energy's order."""
+        return tuple(t.stencil for t in self.terms())
 
-    def stencils(self) -> tuple[Stencil, Stencil, Stencil, Stencil]:
-        """The rows of `L, M, H, C`, in the energy's order."""
-        return (self.laplacian_stencil(), self.mvc_stencil(), self.edge_stencil(),
-                self.handle_stencil())
-
-
-def laplacian_vectors(energy: Energy, vertices: Float[Array, "n 2"]) -> Float[Array, "p 2"]:
-    """`L V`: each polygon vertex minus the mean of its two loop neighbours."""
-    return energy.laplacian_stencil().vectors(vertices)
-
-
-def laplacian_targets(energy: Energy, vertices: Float[Array, "n 2"]) -> Float[Array, "p 2"]:
-    """`delta(V)`: the rest Laplacian's length along the current Laplacian's direction.
-
-    A rest Laplacian of zero length (a straight stretch of the polygon) has target 0;
-    a current Laplacian of zero length has target 0 too, instead of 0/0.
-    """
-    return energy.laplacian_length[:, None] * _safe_normalise(laplacian_vectors(energy, vertices))
-
-
-def edge_vectors(energy: Energy, vertices: Float[Array, "n 2"]) -> Float[Array, "e 2"]:
-    """`H V`: `v_i - v_j` for every edge of `E_CG`."""
-    return energy.edge_stencil().vectors(vertices)
-
-
-def edge_targets(energy: Energy, vertices: Float[Array, "n 2"]) -> Float[Array, "e 2"]:
-    """`e(V)`: each current edge vector scaled back to its rest length."""
-    return energy.edge_length[:, None] * _safe_normalise(edge_vectors(energy, vertices))
+    def row_count(self) -> int:
+        """How many rows (points) the terms have together."""
+        return sum(t.count for t in self.terms())
 
 
 def laplacian_residual(energy: Energy, vertices: Float[Array, "n 2"]) -> Float[Array, "p 2"]:
-    """`L V - delta(V)`, unweighted."""
-    return laplacian_vectors(energy, vertices) - laplacian_targets(energy, vertices)
+    """`L V - delta(V)`, unweighted: `delta(V)` is the rest Laplacian's length along
+    the current Laplacian's direction (0 for a zero rest or current Laplacian)."""
+    return energy.term("laplacian").residual(vertices, None)
 
 
 def mvc_residual(energy: Energy, vertices: Float[Array, "n 2"]) -> Float[Array, "g 2"]:
     """`M V`: each inner vertex minus the mean value combination of its 1-ring."""
-    return energy.mvc_stencil().vectors(vertices)
+    return energy.term("mvc").residual(vertices, None)
 
 
 def length_residual(energy: Energy, vertices: Float[Array, "n 2"]) -> Float[Array, "e 2"]:
-    """`H V - e(V)`, unweighted."""
-    return edge_vectors(energy, vertices) - edge_targets(energy, vertices)
+    """`H V - e(V)`, unweighted: `e(V)` is each current edge vector scaled back to its
+    rest length."""
+    return energy.term("length").residual(vertices, None)
 
 
 def handle_residual(
     energy: Energy, vertices: Float[Array, "n 2"], targets: Float[Array, "h 2"]
 ) -> Float[Array, "h 2"]:
     """`C V - U`: each handle's offset from its target."""
-    return energy.handle_stencil().vectors(vertices) - targets
+    return energy.term("handle").residual(vertices, targets)
 
 
 def residuals(
     energy: Energy, vertices: Float[Array, "n 2"], targets: Float[Array, "h 2"]
 ) -> Float[Array, " m"]:
-    """All four residuals, each times the square root of its weight, as one vector."""
-    w = energy.weights
-    parts = [
-        jnp.sqrt(w.laplacian) * laplacian_residual(energy, vertices),
-        jnp.sqrt(w.mvc) * mvc_residual(energy, vertices),
-        jnp.sqrt(w.length) * length_residual(energy, vertices),
-        jnp.sqrt(w.handle) * handle_residual(energy, vertices, targets),
-    ]
-    return jnp.concatenate([p.reshape(-1) for p in parts])
+    """Every term's residual times the square root of its weight, as one vector."""
+    return jnp.concatenate([(jnp.sqrt(t.weight) * t.residual(vertices, targets)).reshape(-1)
+                            for t in energy.terms()])
 
 
 def total_energy(
     energy: Energy, vertices: Float[Array, "n 2"], targets: Float[Array, "h 2"]
 ) -> Float[Array, ""]:
-    """The energy (6): the weighted sum of the four squared residual norms."""
+    """The energy (6): the weighted sum of the terms' squared residual norms."""
     r = residuals(energy, vertices, targets)
     return jnp.sum(r * r)
 

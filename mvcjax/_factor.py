@@ -40,7 +40,8 @@ from ._stencils import (
 
 
 def operator_triplets(energy: Energy) -> list[tuple[Array, Array, Array, int]]:
-    """The constant matrices `L, M, H, C` of eq. 7 as `(rows, cols, values, row_count)`.
+    """Each term's constant matrix (`L, M, H, C` of eq. 7, then any extra term) as
+    `(rows, cols, values, row_count)`.
 
     Duplicate `(row, col)` entries add up (the zero-weight padding of the MVC rings
     adds zeros). Pure JAX: works on traced and on concrete energies.
@@ -49,7 +50,7 @@ def operator_triplets(energy: Energy) -> list[tuple[Array, Array, Array, int]]:
 
 
 def operators(energy: Energy) -> tuple[Float[Array, "rows n"], ...]:
-    """The constant matrices `L, M, H, C` of eq. 7, dense, `(rows, n)` each."""
+    """Each term's constant matrix, dense, `(rows, n)` each."""
     n = energy.num_vertices
     return tuple(
         jnp.zeros((count, n), energy.rest.dtype).at[rows, cols].add(values)
@@ -64,38 +65,34 @@ def _operator_arrays(energy: Energy):
 
 
 def sparse_operators(energy: Energy) -> tuple[scipy.sparse.csr_matrix, ...]:
-    """The constant matrices `L, M, H, C` of eq. 7 as scipy CSR matrices (float64)."""
+    """Each term's constant matrix as a scipy CSR matrix (float64)."""
     n = energy.num_vertices
-    triplets = _operator_arrays(energy)
-    counts = [a.shape[0] for a in (energy.laplacian_index, energy.mvc_centre, energy.edges,
-                                    energy.handles)]
+    counts = [t.count for t in energy.terms()]
     return tuple(
         scipy.sparse.csr_matrix(
             (np.asarray(values, np.float64), (np.asarray(rows), np.asarray(cols))),
             shape=(count, n),
         )
-        for (rows, cols, values), count in zip(triplets, counts)
+        for (rows, cols, values), count in zip(_operator_arrays(energy), counts)
     )
 
 
 def _local_rows(
     energy: Energy,
 ) -> tuple[Int[Array, "m 3"], Float[Array, "m 3"], Float[Array, " m"]]:
-    """The Laplacian and edge rows merged, so that the local step is one gather: row `r`
-    is `y_r = sum_k coef[r, k] V[rows[r, k]]`, its target `length[r] y_r / |y_r|`."""
-    merged = Stencil.concatenate(energy.laplacian_stencil(), energy.edge_stencil())
-    return merged.rows, merged.coef, jnp.concatenate([energy.laplacian_length,
-                                                      energy.edge_length])
+    """The rows of every turned term (the Laplacian and edge rows) merged, so that the
+    local step is one gather: row `r` is `y_r = sum_k coef[r, k] V[rows[r, k]]`, its
+    target `length[r] y_r / |y_r|`."""
+    turned = [t for t in energy.terms() if t.length is not None]
+    merged = Stencil.concatenate(*(t.stencil for t in turned))
+    return merged.rows, merged.coef, jnp.concatenate([t.length for t in turned])
 
 
 def _local_row_weights(energy: Energy) -> Float[Array, " m"]:
-    """The weight of each merged Laplacian and edge row (its term's), in `_local_rows`'
-    order."""
-    w = energy.weights.normalised()
+    """The weight of each merged turned row (its term's), in `_local_rows`' order."""
     return jnp.concatenate([
-        jnp.broadcast_to(w.laplacian, energy.laplacian_index.shape[:1]),
-        jnp.broadcast_to(w.length, energy.edges.shape[:1]),
-    ]).astype(energy.rest.dtype)
+        jnp.broadcast_to(t.weight, (t.count,)) for t in energy.terms(normalised=True)
+        if t.length is not None]).astype(energy.rest.dtype)
 
 
 class StepData(eqx.Module):
@@ -333,16 +330,15 @@ def dense_factor(energy: Energy, spread: Int[ArrayLike, "n d"] | None = None) ->
 
 @jax.jit
 def _dense_factor(energy: Energy, spread: Int[Array, "n d"]) -> DenseFactor:
-    lap, mvc, length, handle = operators(energy)
-    w = energy.weights.normalised()  # the same G, with rounding blind to the weights' scale
-    normal = (
-        w.laplacian * lap.T @ lap + w.mvc * mvc.T @ mvc + w.length * length.T @ length
-        + w.handle * handle.T @ handle
-    )
-    rhs = jnp.concatenate([w.laplacian * lap.T, w.length * length.T, w.handle * handle.T], axis=1)
+    # Weights normalised: the same G, with rounding blind to the weights' scale.
+    terms = energy.terms(normalised=True)
+    ops = operators(energy)
+    normal = sum(t.weight * op.T @ op for t, op in zip(terms, ops))
+    turned = [t.weight * op.T for t, op in zip(terms, ops) if t.length is not None]
+    (handle,) = [t.weight * op.T for t, op in zip(terms, ops) if t.pinned]
     cho = jax.scipy.linalg.cho_factor(normal)
-    g = jax.scipy.linalg.cho_solve(cho, rhs)
-    split = lap.shape[0] + length.shape[0]
+    g = jax.scipy.linalg.cho_solve(cho, jnp.concatenate([*turned, handle], axis=1))
+    split = g.shape[1] - handle.shape[1]
     rows, coef, rest_length = _local_rows(energy)
     entries = (coef * _local_row_weights(energy)[:, None]).reshape(-1)
     return DenseFactor(
@@ -473,10 +469,9 @@ def sparse_factor(energy: Energy) -> SparseFactor:
             "jax.grad (new weights on a rig with a sparse factor): call rig.with_weights "
             "outside the transformation, or build the rig with factor='dense'."
         )
-    w = energy.weights.normalised()
-    lap, mvc, length, handle = sparse_operators(energy)
-    term_weights = [float(w.laplacian), float(w.mvc), float(w.length), float(w.handle)]
-    normal = sum(t * (op.T @ op) for t, op in zip(term_weights, (lap, mvc, length, handle)))
+    terms = energy.terms(normalised=True)
+    normal = sum(float(t.weight) * (op.T @ op) for t, op in zip(terms, sparse_operators(energy)))
+    (handle,) = [t for t in terms if t.pinned]
     normal = scipy.sparse.coo_matrix(normal)
     host = _HostSolve(normal.tocsc())
     rows, coef, rest_length, row_weight = _sparse_local_rows(energy)
@@ -492,7 +487,7 @@ def sparse_factor(energy: Energy) -> SparseFactor:
         normal_values=jnp.asarray(normal.data, dtype),
         rest=energy.rest.T,
         handles=energy.handles,
-        handle_weight=jnp.asarray(w.handle, dtype),
+        handle_weight=jnp.asarray(handle.weight, dtype),
         host_key=jnp.asarray(np.int32(host.key)),
         host=host,
     )

@@ -20,7 +20,7 @@ from ._checks import (
     whole_number,
 )
 from ._control import PaperControl, as_control
-from ._energy import Energy, Weights, check_weights, total_energy
+from ._energy import Energy, Term, Weights, check_weights, total_energy
 from ._factor import AbstractFactor, FactorBySize, as_factor_method
 from ._folds import inverted_count
 from ._handles import Handles, check_handles, make_handles, pin
@@ -381,6 +381,33 @@ class Rig(JittableModule):
         """
         weights = check_weights(weights).verified().astype(self.energy.rest.dtype)
         energy = eqx.tree_at(lambda e: e.weights, self.energy, weights)
+        factor = self.factor.rebuild(energy)
+        return eqx.tree_at(lambda r: (r.energy, r.factor), self, (energy, factor))
+
+    def with_terms(self, *terms: Any) -> Rig:
+        """The same rig with further terms added to the energy (6) (`mvcjax.advanced.Term`,
+        on the control vertices in the rig's frame, the units of `rig.energy.rest`):
+        every solver, the fixed-G factor and the energy reported then include them.
+        Replaces terms added before. Recomputes the factor, as `with_weights` does."""
+        rest = self.energy.rest
+        tolerance = float(np.sqrt(np.finfo(rest.dtype).eps))  # of the unit diagonal
+        for term in terms:
+            if not isinstance(term, Term) or term.pinned:
+                raise TypeError(f"with_terms takes mvcjax.advanced.Term.turned(...) or "
+                                f"Term.linear(...) terms, got {term!r}.")
+            if isinstance(term.stencil.coef, jax.core.Tracer):
+                continue
+            # The rest pose must stay the minimum for the rest targets (and the fixed-G
+            # step is taken relative to it): a term that pulls at rest would deform a
+            # shape nobody dragged.
+            miss = float(jnp.max(jnp.abs(term.residual(rest, None)), initial=0.0))
+            if not miss <= tolerance:
+                raise ValueError(
+                    f"Term {term.name!r} does not vanish at the rest control mesh (its rows "
+                    f"miss their targets by up to {miss:.3g} of the shape's diagonal): give "
+                    "a linear term coefficients that reproduce the rest mesh, or a turned "
+                    "term the rows' rest lengths (Term.turned_from(..., rig.energy.rest)).")
+        energy = eqx.tree_at(lambda e: e.extra, self.energy, tuple(terms))
         factor = self.factor.rebuild(energy)
         return eqx.tree_at(lambda r: (r.energy, r.factor), self, (energy, factor))
 

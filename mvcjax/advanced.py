@@ -10,6 +10,7 @@ from ._control import AbstractControl as AbstractControl
 from ._coordinates import mean_value_coordinates as mean_value_coordinates
 from ._energy import (
     Energy as Energy,
+    Term as Term,
     handle_residual as handle_residual,
     laplacian_residual as laplacian_residual,
     length_residual as length_residual,
@@ -36,3 +37,4 @@ from ._solvers import (
     JaxoptLevenbergMarquardt as JaxoptLevenbergMarquardt,
 )
 from ._solvers._normal_cg import StructuredCG as StructuredCG
+from ._stencils import Stencil as Stencil

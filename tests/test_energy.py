@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 import mvcjax
+from mvcjax import datasets
 from mvcjax._energy import rigid_alignment
 from mvcjax._factor import dense_factor, operators
 
@@ -119,3 +120,99 @@ def test_the_tie_break_is_small_where_a_term_is_zero(horse_rig):
                                    jac=lambda x: np.asarray(grad(x)), method="L-BFGS-B",
                                    options={"maxiter": 2000, "ftol": 1e-15, "gtol": 1e-12})
     assert float(energy(jnp.ravel(v))) <= best.fun * 1.001
+
+
+def _barycentric_rows(rig):
+    """Each inner control vertex and three of its ring, with coefficients 1 and minus
+    its barycentric coordinates at rest in their triangle (which reproduce it)."""
+    e = rig.energy
+    rest = np.asarray(e.rest)
+    centre, ring = np.asarray(e.mvc_centre), np.asarray(e.mvc_ring)[:, :3]
+    corners = np.concatenate([rest[ring], np.ones(ring.shape + (1,))], axis=2)  # (g, 3, 3)
+    point = np.concatenate([rest[centre], np.ones((len(centre), 1))], axis=1)
+    coords = np.linalg.solve(np.transpose(corners, (0, 2, 1)), point[:, :, None])[:, :, 0]
+    return np.concatenate([centre[:, None], ring], 1), np.concatenate(
+        [np.ones((len(centre), 1)), -coords], 1)
+
+
+def _two_new_terms(rig):
+    """A linear term (each inner vertex held at a barycentric combination of three of
+    its neighbours) and a turned one (each outline vertex's two neighbours keep their
+    rest distance), declared on the control mesh in the rig's frame."""
+    from mvcjax.advanced import Stencil, Term
+
+    rows, coef = _barycentric_rows(rig)
+    loop = rig.energy.laplacian_index
+    dtype = rig.energy.rest.dtype
+    bary = Term.linear("barycentric", Stencil(jnp.asarray(rows), jnp.asarray(coef, dtype)), 0.5)
+    span = Term.turned_from("span", Stencil.fixed(loop[:, 1:], (1.0, -1.0), dtype), 3.0,
+                            rig.energy.rest)
+    return bary, span
+
+
+def _residuals_by_hand(rig, local_targets):
+    """The energy's residuals with the two new terms written out independently of
+    `Term`: what scipy minimises."""
+    loop = np.asarray(rig.energy.laplacian_index)
+    rest = np.asarray(rig.energy.rest)
+    rows, coef = _barycentric_rows(rig)
+    rest_span = np.linalg.norm(rest[loop[:, 1]] - rest[loop[:, 2]], axis=1)
+
+    def residuals(x):
+        v = x.reshape(-1, 2)
+        base = mvcjax.advanced.residuals(rig.energy, v, local_targets)
+        bary = jnp.einsum("gk,gkd->gd", coef, v[rows])
+        span = v[loop[:, 1]] - v[loop[:, 2]]
+        span = span - rest_span[:, None] * span / jnp.linalg.norm(span, axis=1, keepdims=True)
+        return jnp.concatenate([base, jnp.sqrt(0.5) * bary.ravel(), jnp.sqrt(3.0) * span.ravel()])
+
+    return residuals
+
+
+@pytest.mark.parametrize("factor", ["dense", "sparse"])
+def test_a_new_term_is_one_declaration(horse, factor):
+    # Two terms declared as data reach every stage: the reported energy, the fixed-G
+    # factor (dense and sparse) and the least-squares linearisation, each solver
+    # landing on scipy's minimum of the residuals written out by hand.
+    import scipy.optimize
+
+    from mvcjax.advanced import DenseG, SparseLU
+
+    base = mvcjax.Rig.build(horse, datasets.horse_handles(), dtype=jnp.float64,
+                            factor=DenseG() if factor == "dense" else SparseLU())
+    rig = base.with_terms(*_two_new_terms(base))
+    targets = drag(rig, [[40.0, 10.0], [0, 0], [0, 0], [0, 0], [0, 0]])
+    local = rig.frame.to_local(rig.pinned_targets(targets))
+    fun = jax.jit(_residuals_by_hand(base, local))
+    jac = jax.jit(jax.jacfwd(fun))
+    start = np.asarray(rig.frame.to_local(rig.start(targets))).ravel()
+    ref = scipy.optimize.least_squares(lambda x: np.asarray(fun(x)), start,
+                                       jac=lambda x: np.asarray(jac(x)), method="lm",
+                                       xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    scale = float(rig.frame.scale)
+    reference = 2 * ref.cost * scale**2
+    without = float(base.energy_at(rig.frame.to_world(ref.x.reshape(-1, 2)), targets))
+    assert reference > 1.01 * without  # the new terms weigh in
+    assert float(rig.energy_at(rig.frame.to_world(ref.x.reshape(-1, 2)), targets)) == \
+        pytest.approx(reference, rel=1e-10)
+    for solver in (mvcjax.FixedG(iterations=20000, rtol=1e-10, stop_early=True, anderson=5),
+                   mvcjax.GaussNewton(max_steps=500), mvcjax.Dogleg(max_steps=500)):
+        vertices, info = rig.solve(targets, solver, return_info=True)
+        assert bool(info.converged), solver
+        assert float(info.energy) == pytest.approx(reference, rel=1e-8), solver
+        np.testing.assert_allclose(np.asarray(rig.frame.to_local(vertices)).ravel(), ref.x,
+                                   atol=1e-6)
+
+
+def test_with_terms_refuses_a_handle_term_and_a_term_that_pulls_at_rest(horse_rig):
+    from mvcjax.advanced import Stencil, Term
+
+    loop = horse_rig.energy.laplacian_index
+    smooth = Term.linear("smooth", Stencil.fixed(loop, (1.0, -0.5, -0.5), jnp.float64), 1.0)
+    with pytest.raises(ValueError, match="'smooth' does not vanish at the rest"):
+        horse_rig.with_terms(smooth)
+
+    pinned = Term.pinned_to_targets("more handles", Stencil.fixed(
+        horse_rig.energy.handles[:, None], (1.0,), jnp.float64), 1.0)
+    with pytest.raises(TypeError, match="Term.turned"):
+        horse_rig.with_terms(pinned)

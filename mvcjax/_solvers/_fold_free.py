@@ -28,6 +28,7 @@ from ._normal_cg import (
     conjugate_gradient,
     hessian_solve,
 )
+from ._optimistix import GaussNewton
 
 # Armijo's sufficient decrease, and how many times a step may be halved.
 _ARMIJO = 1e-4
@@ -44,6 +45,8 @@ _SAFE_SHARE = 0.9
 # triangles only (a fold is local: few triangles are near flat at once); its gradient
 # takes every active triangle.
 _SHAPE_ROWS = 32
+
+_UNCONSTRAINED = GaussNewton()
 
 
 class _Barrier(eqx.Module):
@@ -100,8 +103,12 @@ class _Barrier(eqx.Module):
         slope = jnp.where(inside, -root_weight * self.threshold / (safe * safe), 0)
         return residual, slope
 
+    def area_shares(self, points: Float[Array, "2 n"]) -> Float[Array, " f"]:
+        """Each triangle's area over its rest area (negative if inverted)."""
+        return signed_areas(points.T, self.faces) / self.rest_area
+
     def feasible(self, points: Float[Array, "2 n"]) -> Array:
-        return jnp.all(signed_areas(points.T, self.faces) > 0)
+        return jnp.all(self.area_shares(points) > 0)
 
     def line(self, points, direction) -> tuple[Array, Array, Array]:
         """The areas along `points + t direction` (`area_along`): the barrier's value
@@ -143,7 +150,7 @@ class _Barrier(eqx.Module):
         """At the mesh's `points` (of `count` control vertices): the gradient of half the
         barrier's squared residuals, and the model `(pick, rows)` that `jvp` and `vjp`
         use, the Jacobian rows of the most squeezed triangles."""
-        s = signed_areas(points.T, self.faces) / self.rest_area
+        s = self.area_shares(points)
         if self.rows == self.faces.shape[0]:
             pick = jnp.arange(self.rows)
         else:
@@ -268,7 +275,7 @@ class FoldFree(AbstractSolver):
 
         return objective
 
-    def _minimise(self, problem, barriers, factor, start):
+    def _minimise(self, problem, barriers, factor, start, done):
         normal, inverse = factor.normal_operator(), factor.normal_inverse_operator()
         dtype = start.dtype
         rtol = default_tol(dtype) if self.rtol is None else self.rtol
@@ -359,8 +366,7 @@ class FoldFree(AbstractSolver):
                                      for b, p in zip(barriers, points))
         # At the start there is no step yet: a zero step deflates nothing.
         previous = (start, normal.mv(start), jnp.zeros_like(start))
-        carry = (jnp.zeros((), jnp.int32), start, points, value, previous,
-                 (jnp.array(False), jnp.array(False)))
+        carry = (jnp.zeros((), jnp.int32), start, points, value, previous, (done, done))
         k, y, _, _, _, (_, converged) = jax.lax.while_loop(running, step, carry)
         return y, k, converged
 
@@ -374,14 +380,27 @@ class FoldFree(AbstractSolver):
             return 0.5 * jax.grad(self._objective(*self._problem(energy, targets, shape)))(y)
 
         def run(_, guess):
-            problem, barriers = self._problem(*jax.lax.stop_gradient((energy, targets, shape)))
+            energy_, targets_, shape_, factor_ = jax.lax.stop_gradient(
+                (energy, targets, shape, factor))
+            problem, barriers = self._problem(energy_, targets_, shape_)
+            # The energy's own minimum first: where it keeps every triangle above the
+            # threshold, the barriers vanish around it and it is their minimum too, at
+            # the cost of an unconstrained solve.
+            free, free_info = _UNCONSTRAINED.solve(energy_, factor_, targets_,
+                                                   problem.unscaled(guess))
+            free = problem.scaled(free)
+            shares = [b.area_shares(b.points(free)) for b in barriers]
+            clear = free_info.converged & jnp.all(jnp.stack(
+                [jnp.min(s) >= self.threshold for s in shares]))
             feasible = jnp.all(jnp.stack([b.feasible(b.points(guess)) for b in barriers]))
-            fallback = problem.scaled(rigid_start(jax.lax.stop_gradient(energy),
-                                                  jax.lax.stop_gradient(targets)))
-            start = jnp.where(feasible, guess, fallback)
-            y, k, done = self._minimise(problem, barriers, jax.lax.stop_gradient(factor),
-                                        start)
-            return y, jnp.stack([k, done]).astype(y.dtype)
+            fallback = problem.scaled(rigid_start(energy_, targets_))
+            # Otherwise the caller's start if it folds nothing, else the rigid one. (The
+            # energy's minimum, even unfolded, starts worse where a triangle is near
+            # flat: the barrier's steepest.)
+            start = jnp.where(clear, free, jnp.where(feasible, guess, fallback))
+            y, k, done = self._minimise(problem, barriers, factor_, start, clear)
+            steps = k + free_info.iterations
+            return y, jnp.stack([steps, done]).astype(y.dtype)
 
         inverse = jax.lax.stop_gradient(factor).normal_inverse_operator()
 

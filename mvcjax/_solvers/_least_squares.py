@@ -10,7 +10,6 @@ import lineax as lx
 from jaxtyping import Array, Complex, Float, Int
 
 from .._energy import NORMAL_WEIGHT, Energy, total_energy
-from .._factor import _local_row_weights, _local_rows
 from .._stencils import Stencil, apply_stencils, apply_stencils_transpose, length_scale
 from ._base import SolveInfo, converged_and_finite
 
@@ -26,9 +25,7 @@ def default_tol(dtype) -> float:
 def check_jacobian_fits(energy: Energy, dtype, name: str, alternative: str = "") -> None:
     """Refuse a dense Jacobian that would not fit, with the way out, instead of running out
     of memory (the full solve on a shape mesh of thousands of vertices)."""
-    rows = 2 * (energy.laplacian_index.shape[0] + energy.mvc_centre.shape[0]
-                + energy.edges.shape[0] + energy.handles.shape[0])
-    size = rows * 2 * energy.num_vertices * jnp.dtype(dtype).itemsize
+    size = 2 * energy.row_count() * 2 * energy.num_vertices * jnp.dtype(dtype).itemsize
     if size > _JACOBIAN_LIMIT_BYTES:
         raise ValueError(
             f"{name} materialises the dense Jacobian of the energy, {size / 2**30:.1f} GiB for "
@@ -44,24 +41,25 @@ class ScaledProblem(eqx.Module):
 
     The unknowns `y` are coordinate-major, `(2, n)`, the layout of the factor's products
     (`AbstractFactor.solve_normal` preconditions the solvers' linear solves). The
-    residuals are those of `mvcjax.advanced.residuals` divided by the scale, in another order and
-    in two gathers of points as complex numbers: the Laplacian, edge and handle rows
-    (three-point stencils, each turned to its rest length: zero for a handle, which
-    only moves by its target), then the mean value rows. Every optimistix step
-    linearises them (its line search and trust regions use the Jacobian) and jaxopt's
-    also transposes them, so the fewer gathers the better (four, one per term as
-    `mvcjax.advanced.residuals` has, cost half as much again); the structured descents use the
-    stencils directly (`stencils`, `stencils_transpose`).
+    residuals are those of `mvcjax.advanced.residuals` divided by the scale, in another
+    order and in two gathers of points as complex numbers: the rows of the turned terms
+    and the handles (narrow stencils, each turned to its rest length: zero for a handle,
+    which only moves by its target), then the linear terms' rows (the mean value rows,
+    as wide as a vertex's ring). Every optimistix step linearises them (its line search
+    and trust regions use the Jacobian) and jaxopt's also transposes them, so the fewer
+    gathers the better (one per term, as `mvcjax.advanced.residuals` has, costs half as
+    much again); the structured descents use the stencils directly (`stencils`,
+    `stencils_transpose`). All of it is derived from `Energy.terms`.
 
     Attributes:
         energy: the energy (6).
         targets: `(h, 2)` the handle targets.
-        rows, coef: `(m, 3)` the Laplacian, edge and handle stencils.
-        length: `(m,)` their rest lengths, in scaled units.
+        rows, coef: `(m, k)` the turned terms' and the handles' stencils.
+        length: `(m,)` their rest lengths, in scaled units (zero for the handles).
         offset: `(m,)` what each stencil is measured from (the handle targets, scaled).
         row_weight: `(m,)` the square root of each stencil's weight (`Weights.normalised`).
-        mvc_rows, mvc_coef: `(g, k + 1)` each inner vertex and its ring, with
-            coefficients `1` and minus its mean value coordinates.
+        linear_rows, linear_coef: `(g, k)` the linear terms' rows, their coefficients
+            times the square root of their weight.
     """
 
     energy: Energy
@@ -71,29 +69,34 @@ class ScaledProblem(eqx.Module):
     length: Float[Array, " m"]
     offset: Complex[Array, " m"]
     row_weight: Float[Array, " m"]
-    mvc_rows: Int[Array, "g k1"]
-    mvc_coef: Float[Array, "g k1"]
+    linear_rows: Int[Array, "g k"]
+    linear_coef: Float[Array, "g k"]
 
     def __init__(self, energy: Energy, targets: Float[Array, "h 2"]):
         self.energy = energy
         self.targets = targets
-        rows, coef, length = _local_rows(energy)
-        h = energy.handles
-        dtype = length.dtype
-        merged = Stencil.concatenate(Stencil(rows, coef), energy.handle_stencil())
-        self.rows, self.coef = merged.rows, merged.coef
-        self.length = jnp.concatenate([length / energy.scale, jnp.zeros(h.shape, dtype)])
-        u = self.scaled(targets).astype(dtype)
-        self.offset = jnp.concatenate([jnp.zeros(rows.shape[:1], dtype),
-                                       jax.lax.complex(u[0], u[1])])
         # Weights normalised: tolerances then do not depend on their overall scale (at
         # 1e-30 everywhere, optimistix's absolute tolerance would stop after one step).
-        w = energy.weights.normalised()
+        terms = energy.terms(normalised=True)
+        dtype = energy.rest.dtype
+        # The turned rows, then the handles' (turned to length zero, measured from the
+        # targets), in one gather; the linear rows in another (their stencils are wider).
+        narrow = [t for t in terms if t.length is not None] + [t for t in terms if t.pinned]
+        merged = Stencil.concatenate(*(t.stencil for t in narrow))
+        self.rows, self.coef = merged.rows, merged.coef
+        self.length = jnp.concatenate([
+            t.length / energy.scale if t.length is not None else jnp.zeros(t.count, dtype)
+            for t in narrow]).astype(dtype)
+        u = self.scaled(targets).astype(dtype)
+        self.offset = jnp.concatenate([
+            jax.lax.complex(u[0], u[1]) if t.pinned else jnp.zeros(t.count, dtype)
+            for t in narrow])
         self.row_weight = jnp.sqrt(jnp.concatenate([
-            _local_row_weights(energy), jnp.broadcast_to(w.handle, h.shape).astype(dtype)]))
-        mvc = energy.mvc_stencil()
-        self.mvc_rows = mvc.rows
-        self.mvc_coef = jnp.sqrt(w.mvc).astype(dtype) * mvc.coef
+            jnp.broadcast_to(t.weight, (t.count,)) for t in narrow]).astype(dtype))
+        linear = Stencil.concatenate(*(
+            Stencil(t.stencil.rows, jnp.sqrt(t.weight).astype(dtype) * t.stencil.coef)
+            for t in terms if t.length is None and not t.pinned))
+        self.linear_rows, self.linear_coef = linear.rows, linear.coef
 
     def scaled(self, vertices: Float[Array, "n 2"]) -> Float[Array, "2 n"]:
         return ((vertices - self.energy.rest.mean(axis=0)) / self.energy.scale).T
@@ -124,7 +127,7 @@ class ScaledProblem(eqx.Module):
         v = self.stencils(y) - self.offset
         squared = jnp.real(v) ** 2 + jnp.imag(v) ** 2
         scale = length_scale(squared, self.length)
-        mvc = apply_stencils(self.mvc_rows, self.mvc_coef, y)
+        mvc = apply_stencils(self.linear_rows, self.linear_coef, y)
         r = jnp.concatenate([self.row_weight * (v - scale * v), mvc])
         return Linearisation(
             residual=jnp.stack([jnp.real(r), jnp.imag(r)]),
@@ -136,7 +139,7 @@ class ScaledProblem(eqx.Module):
         with `P_r` the projection across its vector, the mean value rows linear."""
         d = self.stencils(dy)
         across = jnp.real(jnp.conj(at.turn) * d)
-        mvc = apply_stencils(self.mvc_rows, self.mvc_coef, dy)
+        mvc = apply_stencils(self.linear_rows, self.linear_coef, dy)
         r = jnp.concatenate([self.row_weight * (d - at.scale * across * at.turn), mvc])
         return jnp.stack([jnp.real(r), jnp.imag(r)])
 
