@@ -315,6 +315,9 @@ class Renderer(JittableModule):
             size = tuple(int(max(1, round(e / pixel))) for e in extent[::-1])
         rows, cols = _size(size)
         texture_points = np.asarray(_to_pixels(vertices, image_window, *picture.shape[:2]))
+        if image is not None:
+            _check_cover(picture, texture_points, np.asarray(vertices, np.float64),
+                         np.asarray(faces))
         boundary = on_boundary(faces)
         level = None
         if depth is not None:
@@ -479,6 +482,37 @@ def _texture(picture: np.ndarray, alpha: str) -> np.ndarray:
         texture[..., :3] = texture[nearest[0], nearest[1], :3]
     texture[..., 3] = 1.0
     return texture
+
+
+# The least share of the rest mesh's area that must lie on the picture's visible pixels
+# for the picture to be the mesh's (a mesh traced from it covers nearly all of it).
+_LEAST_COVER = 0.5
+
+
+def _check_cover(picture: np.ndarray, texture_points: np.ndarray, vertices: np.ndarray,
+                 faces: np.ndarray) -> None:
+    """Refuse a picture whose visible pixels the rest mesh mostly misses: a sprite that
+    is not the one the shape was made from, or one placed elsewhere."""
+    alpha = picture[..., 3]
+    if alpha.min() > 0.5:
+        return  # opaque everywhere: nothing to compare with
+    rows, cols = alpha.shape
+    centre = np.rint(texture_points[faces].mean(axis=1)).astype(np.int64)  # (col, row)
+    inside = ((centre[:, 0] >= 0) & (centre[:, 0] < cols) & (centre[:, 1] >= 0)
+              & (centre[:, 1] < rows))
+    seen = np.zeros(len(faces), bool)
+    seen[inside] = alpha[centre[inside, 1], centre[inside, 0]] > 0.5
+    corners = vertices[faces]
+    ab, ac = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    area = np.abs(ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0])
+    share = float(area[seen].sum() / max(area.sum(), np.finfo(np.float64).tiny))
+    if share < _LEAST_COVER:
+        raise ValueError(
+            f"image: only {share:.0%} of the mesh's area lies on the picture's visible pixels "
+            "(alpha above 0.5): it is not the picture the shape was made from, or it lies "
+            "elsewhere. Build the shape from this picture (mvcjax.Shape.from_image), or "
+            "place the picture with image_window=(xmin, ymin, xmax, ymax); a picture "
+            "meant to show through a different outline can be made opaque (alpha 1).")
 
 
 def _fill(fill, vertices):

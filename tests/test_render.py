@@ -350,3 +350,19 @@ def test_a_grown_window_holds_a_pose_that_leaves_the_frame(renderer, rig):
     assert 0.2 * rest < grown[..., 3].sum() < rest  # the grown window's pixels are larger
     with pytest.raises(ValueError, match="'grow'"):
         renderer(away, window="fit")
+
+
+def test_a_picture_that_is_not_the_shapes_is_refused(rig, picture):
+    # The same sprite flipped upside down: its alpha has little to do with the rig's
+    # shape, which a renderer would paint with the wrong pixels.
+    with pytest.raises(ValueError, match="of the mesh's area lies on the picture's visible"):
+        mvcjax.Renderer.build(rig, picture[::-1, ::-1])
+    # Shifted by 60 pixels it is refused too; placed back with image_window it is drawn.
+    shifted = np.zeros_like(picture)
+    shifted[:, 60:] = picture[:, :-60]
+    with pytest.raises(ValueError, match="image_window"):
+        mvcjax.Renderer.build(rig, shifted)
+    rows, cols = picture.shape[:2]
+    mvcjax.Renderer.build(rig, shifted, image_window=(-60.5, -0.5, cols - 60.5, rows - 0.5))
+    # Opaque pictures have no outline to compare with: drawn as given.
+    mvcjax.Renderer.build(rig, picture[::-1, ::-1, :3])
