@@ -18,7 +18,7 @@ from ._fit import (
     image_loss as image_loss,
 )
 from ._handles import Bone as Bone
-from ._image import image_mask as image_mask, load_image as load_image
+from ._image import cut_out as cut_out, image_mask as image_mask, load_image as load_image
 from ._interact import Posing as Posing, interact as interact
 from ._metrics import (
     difference as difference,

@@ -411,6 +411,7 @@ class Renderer(JittableModule):
             working = 40 * _CHUNK * self.tile**2 + 300 * rows * cols
             chunk = int(np.clip(2**28 // working, 1, 64))
         chunk = whole_number(chunk, "chunk", what=" of frames")
+        self._warn_if_clipped(frames)
         out = np.empty((len(frames), *self.shape, 4), np.uint8)
         with progress_bar(len(frames), progress, "rendering") as bar:
             for begin in range(0, len(frames), chunk):
@@ -422,6 +423,26 @@ class Renderer(JittableModule):
                 out[begin:begin + done] = to_uint8(np.asarray(pictures[:done]))
                 bar.update(done)
         return out
+
+
+    def _warn_if_clipped(self, frames: np.ndarray) -> None:
+        """Say once, for a whole animation, that part of it leaves the window (and is
+        cut off in every picture that shows it), and how to keep it all."""
+        xmin, ymin, xmax, ymax = np.asarray(self.window, np.float64)
+        with np.errstate(invalid="ignore"):
+            out = ((frames[..., 0] < xmin) | (frames[..., 0] > xmax)
+                   | (frames[..., 1] < ymin) | (frames[..., 1] > ymax)).any(axis=1)
+        if out.any():
+            import warnings
+
+            first = int(np.argmax(out))
+            warnings.warn(
+                f"{int(out.sum())} of {len(frames)} frames (the first: frame {first}) reach "
+                f"outside the renderer's window ({xmin:g}, {ymin:g}, {xmax:g}, {ymax:g}) and "
+                "are cut off there. To keep them whole, build the renderer with "
+                "window=mvcjax.fit_window(frames, size) (one window for the whole "
+                "animation), or draw single poses with renderer(vertices, window='grow').",
+                stacklevel=3)
 
 
 def _grown(window, vertices, shape: tuple[int, int]):

@@ -192,3 +192,75 @@ def test_a_sample_picture_keys_out():
     shape = mvcjax.Shape.from_image(coffee, background="corner", component=0,
                                     min_hole_area=50.0, tolerance=1.0)
     assert 0.5 * mask.size < shape.area < mask.size
+
+
+def _sprite_png_and_jpeg():
+    """A drawn sprite (a brown body, a pale head, a red scarf), antialiased: as RGBA with
+    alpha (a PNG's content) and composited on white and saved as a JPEG."""
+    import io
+
+    from PIL import ImageDraw
+
+    big = 4
+    size = (96 * big, 128 * big)
+    coverage = Image.new("L", size[::-1], 0)
+    paint = Image.new("RGB", size[::-1], (117, 92, 79))
+    for draw, fill in ((ImageDraw.Draw(coverage), 255), (ImageDraw.Draw(paint), None)):
+        draw.ellipse([30 * big, 40 * big, 98 * big, 88 * big], fill=fill or (117, 92, 79))
+        draw.ellipse([50 * big, 10 * big, 78 * big, 40 * big], fill=fill or (235, 200, 170))
+        draw.rectangle([44 * big, 36 * big, 84 * big, 46 * big], fill=fill or (200, 30, 40))
+    cover = np.asarray(coverage, np.float64)[..., None] / 255
+
+    def shrink(a):  # the mean of each big x big block
+        return a.reshape(96, big, 128, big, -1).mean(axis=(1, 3))
+
+    # Straight colours: each pixel's paint averaged over the part of it the sprite covers.
+    alpha = shrink(cover)[..., 0]
+    painted = shrink(np.asarray(paint, np.float64) / 255 * cover)
+    colour = painted / np.maximum(alpha, 1e-9)[..., None]
+    colour[alpha == 0] = (117 / 255, 92 / 255, 79 / 255)
+    png = np.dstack([colour, alpha])
+    on_white = colour * alpha[..., None] + (1 - alpha[..., None])
+    buffer = io.BytesIO()
+    Image.fromarray(np.round(on_white * 255).astype(np.uint8)).save(buffer, "JPEG", quality=90)
+    return png, load_image(Image.open(io.BytesIO(buffer.getvalue())))
+
+
+def test_a_keyed_jpeg_renders_without_a_halo():
+    # The same sprite from a PNG with alpha and from a JPEG on white: cut out of the white,
+    # its edge pixels render in the sprite's colours, not the background's.
+    png, jpeg = _sprite_png_and_jpeg()
+    shape = mvcjax.Shape.from_image(png)
+    rig = mvcjax.Rig.build(shape, [shape.closest_point(p) for p in [(40, 30), (90, 30), (64, 80)]])
+    rest = rig.shape_mesh.vertices
+
+    def edge_colour(picture):
+        out = np.asarray(mvcjax.Renderer.build(rig, picture)(rest))
+        reference = np.asarray(mvcjax.Renderer.build(rig, png)(rest))
+        edge = (reference[..., 3] > 0.05) & (reference[..., 3] < 0.95)
+        assert edge.sum() > 100
+        return out[edge, :3].mean(axis=0)
+
+    want = edge_colour(png)
+    cut = mvcjax.cut_out(jpeg, background="corner")
+    assert np.abs(edge_colour(cut) - want).max() < 0.05
+    assert np.abs(edge_colour(jpeg) - want).max() > 0.1  # the opaque JPEG: a light rim
+    # Cut out, it makes the same shape as the PNG's alpha, to a pixel along the outline.
+    np.testing.assert_allclose(mvcjax.Shape.from_image(cut).area, shape.area, rtol=0.03)
+
+
+def test_cut_out_keeps_the_inside_and_drops_the_background():
+    picture = np.ones((30, 40, 3))
+    picture[disc()] = (0.2, 0.4, 0.6)
+    cut = mvcjax.cut_out(picture, background=(1.0, 1.0, 1.0))
+    assert cut.shape == (30, 40, 4) and cut.dtype == np.float32
+    inside = disc(radius=6)
+    want = np.broadcast_to([0.2, 0.4, 0.6, 1.0], (inside.sum(), 4))
+    np.testing.assert_allclose(cut[inside], want, atol=1e-6)
+    assert np.all(cut[~disc(radius=12), 3] == 0)
+    # The outline's pixels take the foreground's colour, whatever their alpha.
+    band = disc(radius=10) & ~disc(radius=7)
+    np.testing.assert_allclose(cut[band, :3], np.broadcast_to([0.2, 0.4, 0.6], (band.sum(), 3)),
+                               atol=1e-6)
+    with pytest.raises(ValueError, match="edge"):
+        mvcjax.cut_out(picture, background=(1.0, 1.0, 1.0), edge=-1)

@@ -366,3 +366,25 @@ def test_a_picture_that_is_not_the_shapes_is_refused(rig, picture):
     mvcjax.Renderer.build(rig, shifted, image_window=(-60.5, -0.5, cols - 60.5, rows - 0.5))
     # Opaque pictures have no outline to compare with: drawn as given.
     mvcjax.Renderer.build(rig, picture[::-1, ::-1, :3])
+
+
+def test_frames_say_once_that_an_animation_leaves_the_window(renderer, rig, picture):
+    import warnings
+
+    rest = np.asarray(rig.shape_mesh.vertices)
+    inside = np.stack([rest + [s, 0.0] for s in (0.0, 1.0)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        renderer.frames(inside)  # within the picture's frame: nothing said
+    width = float(renderer.window[2] - renderer.window[0])
+    leaving = np.stack([rest + [s * width, 0.0] for s in (0.0, 0.5, 1.0)])
+    said_what = r"2 of 3 frames \(the first: frame 1\).*fit_window"
+    with pytest.warns(UserWarning, match=said_what) as said:
+        renderer.frames(leaving)
+    assert len(said) == 1
+    # The fix it names keeps every frame whole.
+    whole = mvcjax.Renderer.build(rig, picture,
+                                  window=mvcjax.fit_window(leaving, renderer.shape))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        whole.frames(leaving)
