@@ -514,23 +514,23 @@ def _check_cover(picture: np.ndarray, texture_points: np.ndarray, vertices: np.n
                  faces: np.ndarray) -> None:
     """Refuse a picture whose visible pixels the rest mesh mostly misses: a sprite that
     is not the one the shape was made from, or one placed elsewhere."""
-    alpha = picture[..., 3]
-    if alpha.min() > 0.5:
-        return  # opaque everywhere: nothing to compare with
-    rows, cols = alpha.shape
+    seen = picture[..., 3] > 1 / 255
+    if seen.all():
+        return  # visible everywhere (an opaque picture): nothing to compare with
+    rows, cols = seen.shape
     centre = np.rint(texture_points[faces].mean(axis=1)).astype(np.int64)  # (col, row)
     inside = ((centre[:, 0] >= 0) & (centre[:, 0] < cols) & (centre[:, 1] >= 0)
               & (centre[:, 1] < rows))
-    seen = np.zeros(len(faces), bool)
-    seen[inside] = alpha[centre[inside, 1], centre[inside, 0]] > 0.5
+    on = np.zeros(len(faces), bool)
+    on[inside] = seen[centre[inside, 1], centre[inside, 0]]
     corners = vertices[faces]
     ab, ac = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
     area = np.abs(ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0])
-    share = float(area[seen].sum() / max(area.sum(), np.finfo(np.float64).tiny))
+    share = float(area[on].sum() / max(area.sum(), np.finfo(np.float64).tiny))
     if share < _LEAST_COVER:
         raise ValueError(
             f"image: only {share:.0%} of the mesh's area lies on the picture's visible pixels "
-            "(alpha above 0.5): it is not the picture the shape was made from, or it lies "
+            "(alpha above 0): it is not the picture the shape was made from, or it lies "
             "elsewhere. Build the shape from this picture (mvcjax.Shape.from_image), or "
             "place the picture with image_window=(xmin, ymin, xmax, ymax); a picture "
             "meant to show through a different outline can be made opaque (alpha 1).")
