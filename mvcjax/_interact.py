@@ -196,6 +196,7 @@ class Posing:
         if ax is None:
             _, ax = plt.subplots(figsize=(6, 6))
         self.axes, self.figure = ax, ax.figure
+        _warn_if_no_window(self.figure)
         _show_window(ax, self.window)
         if renderer is None and (image is not None or render_options or size is not None):
             renderer = Renderer.build(rig, image, window=self.window,
@@ -211,6 +212,7 @@ class Posing:
         self._dtype = np.dtype(rig.energy.rest.dtype)
         self._pick_radius = float(pick_radius)
         self._bones = np.asarray(rig.handles.bones, np.int64).reshape(-1, 2)
+        self._pivot = _rigid_bone_pivots(rig, self._rest_targets)
         self._loops = boundary_loops(np.asarray(rig.shape_mesh.faces))
         self._outline_index = np.concatenate([np.append(loop, loop[0]) for loop in self._loops])
         self._control_edges = edges(np.asarray(rig.control_mesh.faces))
@@ -491,8 +493,22 @@ class Posing:
     def _on_motion(self, event) -> None:
         if self._dragged is None or event.inaxes is not self.axes or event.xdata is None:
             return
-        self.targets[self._dragged] = (event.xdata, event.ydata)
+        self.targets[self._dragged] = self._dragged_to(self._dragged,
+                                                       np.array([event.xdata, event.ydata]))
         self._update()
+
+    def _dragged_to(self, row: int, mouse: np.ndarray) -> np.ndarray:
+        """Where target `row` goes for the mouse at `mouse`: there, or for an end of a
+        rigid bone, the bone turned about its other end (which stays on its dot) to
+        point at the mouse, at its rest length."""
+        other, length = self._pivot.get(row, (None, 0.0))
+        if other is None:
+            return mouse
+        offset = mouse - self.targets[other]
+        distance = float(np.hypot(*offset))
+        if distance == 0:
+            return self.targets[row]
+        return self.targets[other] + offset * (length / distance)
 
     def _on_release(self, event) -> None:
         self._dragged = None
@@ -501,6 +517,43 @@ class Posing:
         # While the toolbar pans or zooms, presses belong to it.
         toolbar = getattr(self.figure.canvas, "toolbar", None)
         return bool(getattr(toolbar, "mode", ""))
+
+
+# matplotlib's canvases that draw to memory or to files only.
+_NO_WINDOW = frozenset({"agg", "pdf", "svg", "ps", "cairo", "template", "pgf"})
+
+
+def _warn_if_no_window(figure) -> None:
+    """Say that nothing can be dragged where the figure's canvas shows no window and
+    takes no mouse (matplotlib's Agg, its inline backend in Jupyter, file backends)."""
+    import matplotlib
+
+    backend = matplotlib.get_backend()
+    module = type(figure.canvas).__module__
+    kind = module.rsplit("backend_", 1)[-1] if module.startswith("matplotlib.backends.") else ""
+    if "inline" in backend.lower() or kind in _NO_WINDOW:
+        import warnings
+
+        warnings.warn(
+            f"matplotlib's backend {backend!r} shows no window and takes no mouse: the "
+            "figure can be drawn and saved, but nothing can be dragged. In Jupyter, run "
+            "%matplotlib widget first (pip install 'mvcjax[widget]'); in a script, use a "
+            "desktop backend (it needs a display) and call plt.show().",
+            stacklevel=3)
+
+
+def _rigid_bone_pivots(rig: Rig, rest: np.ndarray) -> dict[int, tuple[int, float]]:
+    """For each target row that ends a rigid bone: the row of its other end, and the
+    bone's rest length."""
+    handles = rig.handles
+    first, second = np.asarray(handles.first), np.asarray(handles.second)
+    rigid = np.asarray(handles.rigid)
+    pivots = {}
+    for start, end in np.asarray(handles.bones, np.int64).reshape(-1, 2):
+        if rigid[(first == start) & (second == end)].any():
+            length = float(np.hypot(*(rest[end] - rest[start])))
+            pivots[int(start)], pivots[int(end)] = (int(end), length), (int(start), length)
+    return pivots
 
 
 def _show_window(ax, window) -> None:
@@ -566,10 +619,13 @@ def interact(rig: Any, image: Any = None, *, ax: Any = None, solver: Any = DEFAU
     """Pose `rig` with the mouse: a figure in which dragging a handle moves the shape.
 
     Press on a red dot (a handle's target) and drag; the shape, or its picture, follows
-    while the mouse moves. Right-click a dot to send it back to rest. Adding or removing
-    a handle changes the control mesh, so it needs a new rig: `Rig.build(shape, handles)`,
-    then `interact` again. Where the pose folds the shape (triangles turned inside out),
-    those triangles are drawn red and a hint counts them, while they are folded.
+    while the mouse moves. Dragging one end of a rigid bone turns the bone about its
+    other end, which stays on its dot (the dragged end follows the mouse's direction at
+    the bone's length); a stretchy bone's ends move independently. Right-click a dot to
+    send it back to rest. Adding or removing a handle changes the control mesh, so it
+    needs a new rig: `Rig.build(shape, handles)`, then `interact` again. Where the pose
+    folds the shape (triangles turned inside out), those triangles are drawn red and a
+    hint counts them, while they are folded.
 
     Needs an interactive matplotlib backend: in Jupyter, `pip install 'mvcjax[widget]'`
     (ipympl) and run `%matplotlib widget` first; in a script, a desktop backend (the

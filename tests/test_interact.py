@@ -16,8 +16,10 @@ from matplotlib.backend_bases import MouseEvent
 HEAD = 4  # the horse's head handle
 
 # ipympl's toolbar, built outside a kernel, passes traitlets an argument it deprecates.
-pytestmark = pytest.mark.filterwarnings(
-    "ignore:Passing unrecognized arguments:DeprecationWarning")
+pytestmark = [pytest.mark.filterwarnings(
+    "ignore:Passing unrecognized arguments:DeprecationWarning"),
+    # Agg, as everywhere here: the warning is tested once, below.
+    pytest.mark.filterwarnings("ignore:matplotlib's backend")]
 
 
 @pytest.fixture(autouse=True)
@@ -126,13 +128,25 @@ def test_right_click_puts_a_handle_back_and_explains_adding_one(horse_rig):
     assert posing._status.get_text() == ""
 
 
-def test_bones_are_dragged_by_their_ends(horse):
-    rig = mvcjax.Rig.build(horse, [mvcjax.Bone((150.0, 170.0), (250.0, 170.0)),
+@pytest.mark.parametrize("stretch", [False, True])
+def test_bones_are_dragged_by_their_ends(horse, stretch):
+    # A rigid bone turns about the end not dragged, which stays on its dot, even with
+    # the mouse beyond the bone's reach; a stretchy bone's end follows the mouse.
+    rig = mvcjax.Rig.build(horse, [mvcjax.Bone((150.0, 170.0), (250.0, 170.0), stretch=stretch),
                                    (280.0, 20.0), (62.0, 20.0)])
     posing = started(mvcjax.interact(rig))
-    end = posing.targets[1].copy()
-    drag(posing, 1, [end + np.array([0.0, 20.0])])
-    np.testing.assert_allclose(posing.targets[1], end + np.array([0.0, 20.0]), atol=1e-9)
+    start, end = posing.targets[0].copy(), posing.targets[1].copy()
+    mouse_at = end + np.array([60.0, 100.0])
+    drag(posing, 1, [end + np.array([0.0, 20.0]), mouse_at])
+    np.testing.assert_allclose(posing.targets[0], start, atol=1e-12)
+    if stretch:
+        np.testing.assert_allclose(posing.targets[1], mouse_at, atol=1e-9)
+    else:
+        towards = (mouse_at - start) / np.linalg.norm(mouse_at - start)
+        np.testing.assert_allclose(posing.targets[1], start + 100.0 * towards, atol=1e-9)
+        # The bone's pinned points: its start exactly on the start's dot.
+        pinned = np.asarray(rig.pinned_targets(posing.targets))
+        assert np.min(np.linalg.norm(pinned - start, axis=1)) < 1e-6
     x, y = posing._bone_line.get_data()
     np.testing.assert_allclose([x[1], y[1]], posing.targets[1])
     np.testing.assert_allclose(posing.shape_vertices, rig.deform(posing.targets), atol=1e-9)
@@ -405,3 +419,22 @@ def test_folds_are_drawn_over_a_textured_picture(horse_rig):
     blitted = canvas_pixels(posing)
     posing.figure.canvas.draw()
     assert np.abs(canvas_pixels(posing) - blitted).max() <= 2
+
+
+def test_without_a_window_it_says_nothing_can_be_dragged(horse_rig):
+    import warnings
+
+    with pytest.warns(UserWarning, match="shows no window.*%matplotlib widget"):
+        mvcjax.interact(horse_rig)
+    # On a canvas that takes the mouse (an ipympl widget's), nothing is said.
+    from matplotlib.figure import Figure
+
+    try:
+        from ipympl.backend_nbagg import _Backend_ipympl
+    finally:
+        plt.switch_backend("Agg")  # importing ipympl makes it pyplot's backend
+    figure = Figure()
+    _Backend_ipympl.new_figure_manager_given_figure(1, figure)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)
+        mvcjax.interact(horse_rig, ax=figure.add_subplot())
