@@ -273,9 +273,25 @@ def _with_explicit_jacobian(f, y):
     return explicit(y)
 
 
+def _targets_at(start, offsets, pixel, bone_rows, bone_lengths):
+    """The targets for the unknowns `offsets` (pixels): each target moved from `start`;
+    for a rigid bone, its start row moved (the pivot) and its end row's first unknown an
+    arc, in pixels, that the bone turns through about the pivot (its second unknown is
+    unused): a bone's pose fixes its targets, so the fit's answer is unique."""
+    targets = start + offsets * pixel
+    size = jnp.mean(pixel)
+    for (first, last), length in zip(bone_rows, bone_lengths):
+        pivot = targets[first]
+        along = start[last] - start[first]
+        angle = jnp.arctan2(along[1], along[0]) + offsets[last, 0] * size / length
+        targets = targets.at[last].set(
+            pivot + length * jnp.stack([jnp.cos(angle), jnp.sin(angle)]).astype(pivot.dtype))
+    return targets
+
+
 @eqx.filter_jit
 def _stage(rig, renderer, solver, weights, method, steps: int, start, target_picture, blur,
-           pixel):
+           pixel, bone_rows, bone_lengths):
     """One stage of the fit: up to `steps` steps of `method` at one blur, from `start`.
 
     The unknowns are the targets' offsets from `start` in pixels, so that the solver's
@@ -287,7 +303,8 @@ def _stage(rig, renderer, solver, weights, method, steps: int, start, target_pic
     dtype = jnp.promote_types(start.dtype, jnp.asarray(1.0).dtype)
 
     def residuals(offsets):
-        targets = (start + offsets * pixel).astype(start.dtype)
+        targets = _targets_at(start, offsets, pixel, bone_rows, bone_lengths).astype(
+            start.dtype)
         r = _residuals(rig, renderer, solver, weights, targets, target_picture, blur)
         return r.astype(dtype)
 
@@ -328,7 +345,8 @@ def _stage(rig, renderer, solver, weights, method, steps: int, start, target_pic
     state = eqx.combine(dynamic, static)
     done, result = method.terminate(fn, y, None, options, state, tags)
     converged = done & (result == optx.RESULTS.successful)
-    return (start + y * pixel).astype(start.dtype), history.astype(start.dtype), step, converged
+    found = _targets_at(start, y, pixel, bone_rows, bone_lengths).astype(start.dtype)
+    return found, history.astype(start.dtype), step, converged
 
 
 def fit_targets(
@@ -349,6 +367,10 @@ def fit_targets(
     """Handle targets whose pose, drawn by `renderer`, matches `picture`: a least-squares
     fit of the pixels (`image_loss`), by optimistix's Levenberg-Marquardt from `init`,
     one stage per blur, from the widest blur to the last (coarse to fine).
+
+    A rigid bone is fitted by its pivot (its start) and its angle, at its rest length:
+    its pose fixes them, so the targets found are the pose's (its two targets come back
+    exactly its length apart). A stretchy bone's ends are fitted as two points.
 
     Each step builds the Jacobian of the pixel residuals with respect to the `2h` target
     coordinates by forward mode (`2h` tangents, one render), so a step costs a few
@@ -413,12 +435,17 @@ def fit_targets(
     window = jnp.asarray(renderer.window, start.dtype)
     pixel = jnp.stack([(window[2] - window[0]) / cols, (window[3] - window[1]) / rows])
 
+    # Rigid bones by pivot and angle: their rows fix the program, their lengths do not.
+    bone_rows = tuple(rig.handles.rigid_bones())
+    rest = np.asarray(rig.handle_positions, np.float64)
+    bone_lengths = jnp.asarray([np.hypot(*(rest[last] - rest[first]))
+                                for first, last in bone_rows], start.dtype)
     targets, histories, counts, converged = start, [], [], []
     for blur in blur_values:
         targets, history, count, done = _stage(
             rig, renderer, solver, _weights(channels, target_picture.dtype), method,
             int(steps), targets, target_picture,
-            jnp.asarray(blur, start.dtype), pixel)
+            jnp.asarray(blur, start.dtype), pixel, bone_rows, bone_lengths)
         histories.append(history)
         counts.append(count)
         converged.append(done)

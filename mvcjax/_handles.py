@@ -98,6 +98,15 @@ class Handles(eqx.Module):
         """The number of target rows."""
         return self.rest.shape[0]
 
+    def rigid_bones(self) -> list[tuple[int, int]]:
+        """The target rows `(start, end)` of each bone that keeps its length (host
+        numbers, for the interactive and fitting code that reads a rigid bone by its
+        pivot and direction)."""
+        first, second = np.asarray(self.first), np.asarray(self.second)
+        rigid = np.asarray(self.rigid)
+        return [(int(s), int(e)) for s, e in np.asarray(self.bones, np.int64).reshape(-1, 2)
+                if rigid[(first == s) & (second == e)].any()]
+
     def pinned_targets(self, targets: Float[Array, "t 2"]) -> Float[Array, "r 2"]:
         """Where each pinned point goes for these targets (pure JAX)."""
         a, b = targets[self.first], targets[self.second]

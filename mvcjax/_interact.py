@@ -212,7 +212,7 @@ class Posing:
         self._dtype = np.dtype(rig.energy.rest.dtype)
         self._pick_radius = float(pick_radius)
         self._bones = np.asarray(rig.handles.bones, np.int64).reshape(-1, 2)
-        self._pivot = _rigid_bone_pivots(rig, self._rest_targets)
+        self._pivot = _rigid_bone_pivots(rig)
         self._loops = boundary_loops(np.asarray(rig.shape_mesh.faces))
         self._outline_index = np.concatenate([np.append(loop, loop[0]) for loop in self._loops])
         self._control_edges = edges(np.asarray(rig.control_mesh.faces))
@@ -542,17 +542,14 @@ def _warn_if_no_window(figure) -> None:
             stacklevel=3)
 
 
-def _rigid_bone_pivots(rig: Rig, rest: np.ndarray) -> dict[int, tuple[int, float]]:
+def _rigid_bone_pivots(rig: Rig) -> dict[int, tuple[int, float]]:
     """For each target row that ends a rigid bone: the row of its other end, and the
     bone's rest length."""
-    handles = rig.handles
-    first, second = np.asarray(handles.first), np.asarray(handles.second)
-    rigid = np.asarray(handles.rigid)
+    rest = np.asarray(rig.handle_positions, np.float64)
     pivots = {}
-    for start, end in np.asarray(handles.bones, np.int64).reshape(-1, 2):
-        if rigid[(first == start) & (second == end)].any():
-            length = float(np.hypot(*(rest[end] - rest[start])))
-            pivots[int(start)], pivots[int(end)] = (int(end), length), (int(start), length)
+    for start, end in rig.handles.rigid_bones():
+        length = float(np.hypot(*(rest[end] - rest[start])))
+        pivots[start], pivots[end] = (end, length), (start, length)
     return pivots
 
 

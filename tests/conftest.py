@@ -149,6 +149,7 @@ SLOW = [
     # Fitting to a picture in float32: a long compilation of its own; the default
     # suite fits in float64.
     "tests/test_fit.py::test_textured_fit_recovers_the_pose_in_float32",
+    "tests/test_fit.py::test_a_rigid_bone_is_fitted_by_pivot_and_angle",
 ]
 
 

@@ -225,3 +225,30 @@ def test_bad_options(rig64, renderer64):
         mvcjax.fit_targets(rig64, renderer64, picture, steps=0)
     with pytest.raises(TypeError, match="method must be an optimistix Gauss-Newton"):
         mvcjax.fit_targets(rig64, renderer64, picture, method="lm")
+
+
+def test_a_rigid_bone_is_fitted_by_pivot_and_angle():
+    # A bone's pose fixes only its centre and direction; fitted by its pivot and angle,
+    # its targets come back as the true ones, exactly its length apart.
+    shape = datasets.horse(tolerance=3.0)
+    knee, hoof = np.array([268.5, 72.0]), np.array([272.0, 26.0])
+    points = [tuple(p) for p in datasets.horse_handles()[1:]]
+    rig = mvcjax.Rig.build(shape, [*points, mvcjax.Bone(knee, hoof)],
+                           shape_spacing=shape.diagonal / 15, dtype=jnp.float64)
+    rest = np.asarray(rig.handle_positions)
+    truth = rest.copy()
+    truth[4] = knee + [12.0, 6.0]
+    truth[5] = truth[4] + datasets._rotate(hoof, knee, 35.0) - knee
+    truth[3] += [0.0, 20.0]  # the head raised
+    truth = jnp.asarray(truth)
+    poses = np.concatenate([np.asarray(rig.shape_mesh.vertices), np.asarray(rig.deform(truth))])
+    window = mvcjax.fit_window(poses, SIZE, margin=0.1)
+    renderer = mvcjax.Renderer.build(rig, size=SIZE, window=window)
+    pixel = (window[2] - window[0]) / SIZE[1]
+    result = mvcjax.fit_targets(rig, renderer, np.asarray(renderer(rig.deform(truth))),
+                                blurs=BLURS, steps=20)
+    assert errors_in_pixels(rest, truth, pixel).max() > 3.0
+    found = np.asarray(result.targets)
+    assert errors_in_pixels(found, truth, pixel).max() < 0.05
+    assert np.linalg.norm(found[5] - found[4]) == pytest.approx(np.linalg.norm(hoof - knee),
+                                                                rel=1e-12)
