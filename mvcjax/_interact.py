@@ -41,6 +41,9 @@ from ._topology import boundary_loops, edges
 
 _HANDLE_STYLE = {"marker": "o", "markersize": 9, "color": "tab:red", "markeredgecolor": "white",
                  "markeredgewidth": 1.2, "linestyle": "none"}
+# The figure's help line: the mouse and the keys (`Posing._on_key`).
+_HELP = ("drag a red dot · right-click: back to rest · keys: u undo, r reset, "
+         "m mesh, space record")
 _ADD_HINT = ("adding or removing a handle needs a new rig:\n"
              "mvcjax.Rig.build(shape, handles), then interact again")
 _FOLD_STYLE = {"facecolor": (0.85, 0.05, 0.05, 0.55), "edgecolor": (0.85, 0.05, 0.05, 0.9),
@@ -220,6 +223,7 @@ class Posing:
         self.targets = self._rest_targets.copy()
         self.updates, self.update_seconds = 0, []
         self._dragged: int | None = None
+        self._history: list[np.ndarray] = []  # the targets before each move, for undo
         self._background = None
         self._recording, self._recorded, self._times = bool(record), [], []
 
@@ -232,6 +236,7 @@ class Posing:
             canvas.mpl_connect("button_press_event", self._on_press),
             canvas.mpl_connect("motion_notify_event", self._on_motion),
             canvas.mpl_connect("button_release_event", self._on_release),
+            canvas.mpl_connect("key_press_event", self._on_key),
         ]
         if self._recording:
             self._record()
@@ -312,8 +317,27 @@ class Posing:
         self._update()
 
     def reset(self) -> None:
-        """Every target back at rest."""
+        """Every target back at rest (undone by `undo`)."""
+        self._history.append(self.targets.copy())
         self.set_targets(self._rest_targets)
+
+    def undo(self) -> bool:
+        """Take back the last move (a drag, a right-click, a reset): the targets as they
+        were before it. False if there is nothing to take back."""
+        if not self._history:
+            return False
+        self.set_targets(self._history.pop())
+        return True
+
+    def toggle_mesh(self) -> None:
+        """Show or hide the control mesh drawn over a filled shape."""
+        if self._control is None:
+            self._status.set_text("the control mesh is drawn over a filled shape only "
+                                  "(interact without a picture, control_mesh=True)")
+        else:
+            self._control.set_visible(not self._control.get_visible())
+            self._status.set_text("")
+        self._blit()
 
     def disconnect(self) -> None:
         """Stop listening to the mouse (the figure stays as it is)."""
@@ -337,7 +361,7 @@ class Posing:
         breaks = np.cumsum([len(loop) + 1 for loop in self._loops])[:-1]
         for part in np.split(outline, breaks):
             ax.plot(part[:, 0], part[:, 1], color="0.75", linewidth=0.8, zorder=1)
-        ax.set_title("drag a red dot; right-click one to put it back", fontsize=9)
+        ax.set_title(_HELP, fontsize=8)
         animated = {"animated": True}
         if self.renderer is not None:
             self._image = _picture_class()(ax, extent=(xmin, xmax, ymin, ymax), origin="upper",
@@ -483,10 +507,12 @@ class Posing:
                 self._status.set_text(_ADD_HINT)
                 self._blit()
             else:
+                self._history.append(self.targets.copy())
                 self.targets[picked] = self._rest_targets[picked]
                 self._update()
             return
         if event.button == 1 and picked is not None:
+            self._history.append(self.targets.copy())
             self._dragged = picked
             self._status.set_text("")  # a hint goes with the next drag
 
@@ -511,7 +537,27 @@ class Posing:
         return self.targets[other] + offset * (length / distance)
 
     def _on_release(self, event) -> None:
+        if self._dragged is not None and np.array_equal(self._history[-1], self.targets):
+            self._history.pop()  # a click that moved nothing is no move to undo
         self._dragged = None
+
+    def _on_key(self, event) -> None:
+        key = (event.key or "").lower()
+        if key in ("u", "ctrl+z", "cmd+z"):
+            if not self.undo():
+                self._status.set_text("nothing to undo")
+                self._blit()
+        elif key == "r":
+            self.reset()
+        elif key == "m":
+            self.toggle_mesh()
+        elif key == " ":
+            self.record(not self._recording)
+            self._status.set_text(f"recording ({len(self._recorded)} poses so far)"
+                                  if self._recording else
+                                  f"recording stopped: {len(self._recorded)} poses; "
+                                  "posing.write_animation(path) writes them")
+            self._blit()
 
     def _toolbar_busy(self) -> bool:
         # While the toolbar pans or zooms, presses belong to it.
@@ -616,7 +662,8 @@ def interact(rig: Any, image: Any = None, *, ax: Any = None, solver: Any = DEFAU
     """Pose `rig` with the mouse: a figure in which dragging a handle moves the shape.
 
     Press on a red dot (a handle's target) and drag; the shape, or its picture, follows
-    while the mouse moves. Dragging one end of a rigid bone turns the bone about its
+    while the mouse moves. Keys: `u` undo, `r` reset, `m` show or hide the control mesh,
+    space start or stop recording. Dragging one end of a rigid bone turns the bone about its
     other end, which stays on its dot (the dragged end follows the mouse's direction at
     the bone's length); a stretchy bone's ends move independently. Right-click a dot to
     send it back to rest. Adding or removing a handle changes the control mesh, so it

@@ -438,3 +438,44 @@ def test_without_a_window_it_says_nothing_can_be_dragged(horse_rig):
     with warnings.catch_warnings():
         warnings.simplefilter("error", UserWarning)
         mvcjax.interact(horse_rig, ax=figure.add_subplot())
+
+
+def key(posing, name):
+    from matplotlib.backend_bases import KeyEvent
+
+    KeyEvent("key_press_event", posing.figure.canvas, name)._process()
+
+
+def test_keys_undo_reset_toggle_the_mesh_and_record(horse_rig):
+    posing = started(mvcjax.interact(horse_rig))
+    rest = posing.targets.copy()
+    head = rest[HEAD]
+    drag(posing, HEAD, [head + [10.0, 0.0]])
+    after_one = posing.targets.copy()
+    drag(posing, 0, [rest[0] + [0.0, 15.0]])
+    mouse(posing, "button_press", posing.targets[1])  # a click that moves nothing
+    mouse(posing, "button_release", posing.targets[1])
+    key(posing, "u")  # takes back the second drag, not the click
+    np.testing.assert_array_equal(posing.targets, after_one)
+    np.testing.assert_allclose(posing.shape_vertices, horse_rig.deform(after_one), atol=1e-9)
+    key(posing, "r")
+    np.testing.assert_array_equal(posing.targets, rest)
+    key(posing, "u")  # a reset is undone too
+    np.testing.assert_array_equal(posing.targets, after_one)
+    key(posing, "u")
+    np.testing.assert_array_equal(posing.targets, rest)
+    key(posing, "u")
+    assert "nothing to undo" in posing._status.get_text()
+    assert posing._control.get_visible()
+    key(posing, "m")
+    assert not posing._control.get_visible()
+    key(posing, "m")
+    assert posing._control.get_visible()
+    assert not posing.recording
+    key(posing, " ")
+    assert posing.recording
+    drag(posing, HEAD, [head + [5.0, 0.0], head + [9.0, 0.0]])
+    key(posing, " ")
+    assert not posing.recording and "3 poses" in posing._status.get_text()
+    assert len(posing.recorded()) == 3
+    assert "u undo" in posing.axes.get_title()
