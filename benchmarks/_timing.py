@@ -10,6 +10,16 @@ import sys
 import time
 
 
+def quick_and_json(doc: str, quick_help: str, argv=None):
+    """The arguments of a benchmark that takes only `--quick` and `--json`."""
+    import argparse
+
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help=quick_help)
+    parser.add_argument("--json", help="write the results to this JSON file")
+    return parser.parse_args(argv)
+
+
 def spacing_for(shape, vertices: int) -> float:
     """A shape-mesh spacing giving about `vertices` vertices.
 

@@ -16,11 +16,10 @@ compiled first; the first call's time reported apart):
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 
-from _timing import interleaved_median_ms, write_results
+from _timing import interleaved_median_ms, quick_and_json, write_results
 
 WAYS = ("method", "equinox_method", "argument", "closure")
 
@@ -68,10 +67,7 @@ def format_table(data: dict) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="fewer repeats")
-    parser.add_argument("--json", help="write the rows to this JSON file")
-    args = parser.parse_args(argv)
+    args = quick_and_json(__doc__, "fewer repeats", argv)
     rows = measure(40 if args.quick else 400)
     for row in rows:
         print(f"{row['way']:>15}: {row['frame_ms']:.3f} ms a frame "

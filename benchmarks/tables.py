@@ -11,7 +11,7 @@ fails, naming the page and the table, where a page differs from what its results
     python benchmarks/tables.py --check   # exit 1 if a table is stale, naming it
 
 The pages and their tables: `docs/benchmarks.md` (deform, solvers, frames, throughput,
-interact, render), `docs/paper.md` (table1), `docs/folds.md` (folds, written by
+many rigs, interact, render), `docs/paper.md` (table1), `docs/folds.md` (folds, written by
 `folds.format_tables` as `benchmarks/folds.py --table ... --docs ...` writes it) and
 `docs/robustness.md` (robustness, once its results file exists) and `docs/guide.md`
 (jit-method, in its design notes).
@@ -28,6 +28,7 @@ from pathlib import Path
 
 import folds
 import jit_method
+import many_rigs
 import robustness
 import solvers
 import table1
@@ -342,6 +343,11 @@ def jit_method_table(data: dict, source: str) -> str:
     return _measured_on(data, source) + "\n\n" + jit_method.format_table(data)
 
 
+def many_rigs_table(data: dict, source: str) -> str:
+    """`benchmarks/many_rigs.py`: memory as rigs of new sizes go by, and a new rig's time."""
+    return _measured_on(data, source) + "\n\n" + many_rigs.format_table(data)
+
+
 def robustness_table(data: dict | None, source: str) -> str:
     """`benchmarks/robustness.py`: what happened to the hostile cases."""
     if data is None:
@@ -382,6 +388,7 @@ TABLES = [
     Table(BENCHMARKS, "throughput-frame", _results("throughput"), throughput_frame_table),
     Table(BENCHMARKS, "throughput-batch", _results("throughput"), throughput_batch_table),
     Table(BENCHMARKS, "throughput-floors", _results("throughput"), throughput_floors_table),
+    Table(BENCHMARKS, "many-rigs", _results("many_rigs"), many_rigs_table),
     Table(BENCHMARKS, "interact", _results("interact"), interact_table),
     Table(BENCHMARKS, "render", _results("render"), render_table),
     Table(BENCHMARKS, "render-peers", _results("render"), render_peers_table),

@@ -26,6 +26,7 @@ from ._folds import inverted_count
 from ._handles import Handles, check_handles, make_handles, pin
 from ._local_frame import Frame, bounding_frame, check_representable, frame_array, points_to_local
 from ._module import JittableModule
+from ._programs import note_size
 from ._shape import Shape
 from ._skinning import BarycentricSkinning, BlendedMVCSkinning, Skinning, as_skinning
 from ._solvers import DEFAULT_SOLVER, AbstractSolver
@@ -337,7 +338,7 @@ class Rig(JittableModule):
             control_vertices, control_faces, loops, inner, control_pinned, weights, dtype,
         )
         world = lambda v: _array(v * scale + centre, dtype)  # noqa: E731
-        return cls(
+        rig = cls(
             shape_mesh=ShapeMesh(world(shape_vertices), _ints(shape_faces), _ints(shape_pinned)),
             control_mesh=ControlMesh(
                 world(control_vertices), _ints(control_faces),
@@ -350,6 +351,8 @@ class Rig(JittableModule):
             frame=frame_array(centre, scale, dtype),
             turns=_array(turn_weights(control_vertices, control_faces, control_pinned), dtype),
         )
+        note_size(rig)  # a bounded number of sizes' programs kept (`_programs`)
+        return rig
 
     # ---- using the rig --------------------------------------------------------------
 
