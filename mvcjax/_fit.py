@@ -436,10 +436,9 @@ def fit_targets(
     pixel = jnp.stack([(window[2] - window[0]) / cols, (window[3] - window[1]) / rows])
 
     # Rigid bones by pivot and angle: their rows fix the program, their lengths do not.
-    bone_rows = tuple(rig.handles.rigid_bones())
-    rest = np.asarray(rig.handle_positions, np.float64)
-    bone_lengths = jnp.asarray([np.hypot(*(rest[last] - rest[first]))
-                                for first, last in bone_rows], start.dtype)
+    bones = rig.handles.rigid_bones(rig.handle_positions)
+    bone_rows = tuple((first, last) for first, last, _ in bones)
+    bone_lengths = jnp.asarray([length for *_, length in bones], start.dtype)
     targets, histories, counts, converged = start, [], [], []
     for blur in blur_values:
         targets, history, count, done = _stage(

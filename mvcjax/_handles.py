@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse
 import shapely
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
@@ -98,13 +98,15 @@ class Handles(eqx.Module):
         """The number of target rows."""
         return self.rest.shape[0]
 
-    def rigid_bones(self) -> list[tuple[int, int]]:
-        """The target rows `(start, end)` of each bone that keeps its length (host
-        numbers, for the interactive and fitting code that reads a rigid bone by its
-        pivot and direction)."""
+    def rigid_bones(self, positions: Float[ArrayLike, "t 2"]) -> list[tuple[int, int, float]]:
+        """Each bone that keeps its length, as the target rows of its ends and its length
+        between `positions` (the rest targets, in the units wanted): host numbers, for
+        the interactive and fitting code that reads a rigid bone by its pivot and
+        direction."""
         first, second = np.asarray(self.first), np.asarray(self.second)
-        rigid = np.asarray(self.rigid)
-        return [(int(s), int(e)) for s, e in np.asarray(self.bones, np.int64).reshape(-1, 2)
+        rigid, positions = np.asarray(self.rigid), np.asarray(positions, np.float64)
+        return [(int(s), int(e), float(np.hypot(*(positions[e] - positions[s]))))
+                for s, e in np.asarray(self.bones, np.int64).reshape(-1, 2)
                 if rigid[(first == s) & (second == e)].any()]
 
     def pinned_targets(self, targets: Float[Array, "t 2"]) -> Float[Array, "r 2"]:

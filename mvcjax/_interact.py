@@ -591,10 +591,8 @@ def _warn_if_no_window(figure) -> None:
 def _rigid_bone_pivots(rig: Rig) -> dict[int, tuple[int, float]]:
     """For each target row that ends a rigid bone: the row of its other end, and the
     bone's rest length."""
-    rest = np.asarray(rig.handle_positions, np.float64)
     pivots = {}
-    for start, end in rig.handles.rigid_bones():
-        length = float(np.hypot(*(rest[end] - rest[start])))
+    for start, end, length in rig.handles.rigid_bones(rig.handle_positions):
         pivots[start], pivots[end] = (end, length), (start, length)
     return pivots
 

@@ -424,7 +424,6 @@ class Renderer(JittableModule):
                 bar.update(done)
         return out
 
-
     def _warn_if_clipped(self, frames: np.ndarray) -> None:
         """Say once, for a whole animation, that part of it leaves the window (and is
         cut off in every picture that shows it), and how to keep it all."""

@@ -199,7 +199,9 @@ class FoldFree(AbstractSolver):
     root of each triangle's area along the step), then backtracks until the objective
     falls enough (Armijo). From a start without folds (a start with folds is replaced by
     the rest mesh moved rigidly onto the handles), every pose it visits and returns has
-    none.
+    none. First it solves the energy alone (`GaussNewton()`): where that minimum keeps
+    every triangle above `threshold`, the barriers are zero around it, and it is returned
+    without a barrier step.
 
     Where the targets can only be met by folding (a hand pushed through the body), the
     pose stops short of them: `SolveInfo.handle_miss` says by how much, and
