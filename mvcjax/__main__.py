@@ -107,8 +107,10 @@ def _demo(args) -> int:
     _say(f"dtype      : {rig.energy.rest.dtype}, device {jax.devices()[0].platform}")
     _say(f"preprocess : {build * 1e3:.0f} ms (meshing, skinning weights, G)")
     _say(f"compile    : {compile_time * 1e3:.0f} ms (solve + skin, once)")
-    _say(f"per frame  : {frame_time * 1e3:.3f} ms (rig.deform's default: FixedG, 60 "
-         f"iterations from the turned start, + blended MVC skinning; median of {len(times)})")
+    iterations = mvcjax._solvers.DEFAULT_SOLVER.iterations
+    _say(f"per frame  : {frame_time * 1e3:.3f} ms (rig.deform's default: FixedG, "
+         f"{iterations} iterations from the turned start, + blended MVC skinning; median "
+         f"of {len(times)})")
     for name, (_, info, folded) in arm["poses"].items():
         _say(f"arm        : {name:<9}: {folded} shape triangles folded, "
              f"{int(info.inverted)} control triangles inverted, handles missed by "
