@@ -4,7 +4,12 @@ What a user poses, renders, exports and fits with; the rig's parts and the exten
 points are in `mvcjax.advanced`.
 """
 
-from . import advanced as advanced, datasets as datasets, export as export
+from . import (
+    advanced as advanced,
+    datasets as datasets,
+    export as export,
+    generate as generate,
+)
 from ._animation import deform_frames as deform_frames
 from ._control import (
     FullSolve as FullSolve,

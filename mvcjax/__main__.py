@@ -1,4 +1,5 @@
-"""Command line: `mvcjax demo [--out FILE.png] [--animation FILE.gif]`."""
+"""Command line: `mvcjax demo [--out FILE.png] [--animation FILE.gif]`, and
+`mvcjax dataset SPRITES OUT [--poses N] [--size PIXELS] ...`."""
 
 from __future__ import annotations
 
@@ -144,6 +145,37 @@ def _arm_overhead(degrees: float) -> dict:
     return {"rig": rig, "targets": targets, "poses": poses}
 
 
+def _dataset(args) -> int:
+    import jax
+
+    from mvcjax import generate
+
+    if args.coordinator is not None:
+        jax.distributed.initialize(coordinator_address=args.coordinator,
+                                   num_processes=args.num_processes,
+                                   process_id=args.process_id)
+    if args.glyphs is not None:
+        sprites = generate.glyph_sprites(args.glyphs, font=args.font, size=args.glyph_size)
+    else:
+        sprites = args.sprites
+    limits = generate.PoseLimits(offset=args.offset, spread=args.spread, turn=args.turn,
+                                 bone_turn=args.bone_turn, folds=args.folds)
+    count = len(sprites) if isinstance(sprites, dict) else "the"
+    _say(f"mvcjax dataset: {count} sprites of {args.sprites}, {args.poses} poses each, "
+         f"{args.size}x{args.size} pixels, into {args.out} (process "
+         f"{jax.process_index() + 1} of {jax.process_count()}, "
+         f"{len(jax.local_devices())} local devices)")
+    report = generate.write_dataset(
+        sprites, args.out, poses=args.poses, size=args.size, limits=limits, seed=args.seed,
+        batch=args.batch, progress=None if args.progress is None else args.progress == "on")
+    _say(f"  {report.written} pictures written, {report.resumed} already there, "
+         f"{len(report.skipped)} sprites skipped, in {report.seconds:.1f} s "
+         f"({report.images_per_second:.1f} pictures a second)")
+    for name, reason in report.skipped.items():
+        _say(f"  skipped {name}: {reason}")
+    return 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="mvcjax", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -158,10 +190,46 @@ def main(argv=None) -> int:
     demo.add_argument("--dpi", type=int, default=110)
     demo.add_argument("--arm-degrees", type=float, default=110.0,
                       help="how far the character's arm turns in the fold panels")
+    dataset = sub.add_parser(
+        "dataset", help="pose every sprite of a folder at random and write the pictures",
+        description="Rig every sprite of a folder (pictures with alpha, or opaque pictures "
+        "keyed from their corner colour), pose each at random within limits (no folds), "
+        "and write the posed pictures, masks and handle targets (mvcjax.generate). Run it "
+        "again with the same options to finish an interrupted dataset.")
+    dataset.add_argument("sprites", help="a folder of sprites, or a label with --glyphs")
+    dataset.add_argument("out", help="the folder to write")
+    dataset.add_argument("--glyphs", default=None,
+                         help="pose these letters of a font instead of a folder's sprites")
+    dataset.add_argument("--font", default=None, help="font file for --glyphs (default: "
+                         "DejaVu Sans)")
+    dataset.add_argument("--glyph-size", type=int, default=96, help="glyph size in pixels")
+    dataset.add_argument("--poses", type=int, default=64, help="random poses per sprite")
+    dataset.add_argument("--size", type=int, default=128, help="picture side, in pixels")
+    dataset.add_argument("--batch", type=int, default=32, help="poses per file")
+    dataset.add_argument("--seed", type=int, default=0)
+    limits = _pose_limits()
+    for name in ("offset", "spread", "turn", "bone_turn"):
+        dataset.add_argument(f"--{name.replace('_', '-')}", type=float,
+                             default=getattr(limits, name),
+                             help=f"PoseLimits.{name} (default {getattr(limits, name)})")
+    dataset.add_argument("--folds", action="store_true", help="keep poses that fold")
+    dataset.add_argument("--progress", choices=("on", "off"), default=None)
+    dataset.add_argument("--coordinator", default=None, help="host:port of process 0, to "
+                         "run as one of several processes (jax.distributed)")
+    dataset.add_argument("--num-processes", type=int, default=None)
+    dataset.add_argument("--process-id", type=int, default=None)
     args = parser.parse_args(argv)
     if args.command == "demo":
         return _demo(args)
+    if args.command == "dataset":
+        return _dataset(args)
     return 2
+
+
+def _pose_limits():
+    from mvcjax.generate import PoseLimits
+
+    return PoseLimits()
 
 
 if __name__ == "__main__":

@@ -13,7 +13,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Float
 
-from ._checks import as_array, check_solver, kind_of, whole_number
+from ._checks import as_array, as_devices, check_solver, kind_of, whole_number
 from ._rig import Rig, solve_in_frame
 from ._skinning import skin_frames_into
 from ._solvers import DEFAULT_SOLVER, AbstractSolver
@@ -127,7 +127,8 @@ def deform_frames(
             faults on fresh memory at every call, which dominate for large results
             (`benchmarks/frames.py` measures both). One device only.
         devices: the devices to shard the frames over (default: one, the default device;
-            `jax.devices()` for all). Frames are padded to a multiple of their count.
+            `jax.local_devices()` for all of this process's). Frames are padded to a
+            multiple of their count.
 
     Returns:
         `(frames, n, 2)` deformed shape-mesh vertices.
@@ -159,16 +160,10 @@ def deform_frames(
     chunk = whole_number(chunk, "chunk", what=" of frames")
     if targets.shape[0] == 0:
         raise ValueError("targets hold no frames (shape (0, h, 2)); give at least one frame.")
-    if devices is not None:
-        devices = list(devices)
-        if not devices or not all(isinstance(d, jax.Device) for d in devices):
-            raise ValueError(
-                f"devices must be a non-empty list of JAX devices (e.g. jax.devices()), got "
-                f"{devices!r}; leave it out for the default device."
-            )
+    devices = as_devices(devices)
     targets = targets.astype(rig.energy.rest.dtype)
     frames = targets.shape[0]
-    devices = [jax.devices()[0]] if devices is None else devices
+    devices = [jax.local_devices()[0]] if devices is None else devices
     if out is not None:
         if len(devices) != 1:
             raise ValueError("out works on one device; leave it out to shard frames over "

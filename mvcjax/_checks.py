@@ -84,3 +84,17 @@ def whole_number(value, name: str, minimum: int = 1, what: str = "") -> int:
     if value < minimum:
         raise ValueError(f"{name} must be a whole number{what} >= {minimum}, got {value!r}.")
     return int(value)
+
+
+def as_devices(devices) -> list | None:
+    """`devices` as a non-empty list of JAX devices, or None for the default device."""
+    import jax
+
+    if devices is None:
+        return None
+    devices = list(devices) if isinstance(devices, (list, tuple)) else [devices]
+    if not devices or not all(isinstance(d, jax.Device) for d in devices):
+        raise ValueError(f"devices must be a non-empty list of JAX devices (e.g. "
+                         f"jax.local_devices()), got {devices!r}; leave it out for the "
+                         "default device.")
+    return devices

@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from ._checks import as_points, kind_of, whole_number
+from ._checks import as_devices, as_points, kind_of, whole_number
 from ._module import JittableModule
 from ._topology import on_boundary
 from ._xla import materialise
@@ -385,7 +385,8 @@ class Renderer(JittableModule):
         return _draw(self, vertices,
                      self.window if window is None else jnp.asarray(window, self.texture.dtype))
 
-    def frames(self, vertices: Any, *, chunk: Any = None, progress: Any = None) -> np.ndarray:
+    def frames(self, vertices: Any, *, chunk: Any = None, progress: Any = None,
+               devices: Any = None) -> np.ndarray:
         """Many pictures, ready to write: `(frames, rows, cols, 4)` straight RGBA as
         `uint8` numpy, drawn `chunk` frames at a time by one compiled program.
 
@@ -395,6 +396,9 @@ class Renderer(JittableModule):
                 of working memory (at least 1, at most 64).
             progress: a progress bar (tqdm): True, False, or None for one on a terminal
                 when there are more than 10 frames.
+            devices: the devices to draw on (default: one, the default device;
+                `jax.local_devices()` for all of this process's): consecutive chunks go
+                to the devices in turn and are drawn at the same time.
         """
         from ._progress import progress_bar
         from .export import to_uint8
@@ -411,17 +415,28 @@ class Renderer(JittableModule):
             working = 40 * _CHUNK * self.tile**2 + 300 * rows * cols
             chunk = int(np.clip(2**28 // working, 1, 64))
         chunk = whole_number(chunk, "chunk", what=" of frames")
+        devices = as_devices(devices)
+        # Each device draws with its own copy of the renderer: JAX then runs a chunk on
+        # every device at once, each program where its arrays are.
+        copies = [self] if devices is None else [jax.device_put(self, d) for d in devices]
         self._warn_if_clipped(frames)
         out = np.empty((len(frames), *self.shape, 4), np.uint8)
+        dtype = self.texture.dtype
         with progress_bar(len(frames), progress, "rendering") as bar:
-            for begin in range(0, len(frames), chunk):
-                part = frames[begin:begin + chunk]
-                if len(part) < chunk:  # one compiled size: pad the last batch
-                    part = np.concatenate([part, np.repeat(part[-1:], chunk - len(part), 0)])
-                pictures = _draw_batch(self, jnp.asarray(part, self.texture.dtype))
-                done = min(chunk, len(frames) - begin)
-                out[begin:begin + done] = to_uint8(np.asarray(pictures[:done]))
-                bar.update(done)
+            for first in range(0, len(frames), chunk * len(copies)):
+                drawn = []
+                for renderer, begin in zip(copies, range(first, len(frames), chunk)):
+                    part = frames[begin:begin + chunk]
+                    if len(part) < chunk:  # one compiled size: pad the last batch
+                        part = np.concatenate([part, np.repeat(part[-1:], chunk - len(part),
+                                                               0)])
+                    part = jnp.asarray(part, dtype) if devices is None else jax.device_put(
+                        part.astype(dtype), renderer.texture.sharding)
+                    drawn.append((begin, _draw_batch(renderer, part)))
+                for begin, pictures in drawn:
+                    done = min(chunk, len(frames) - begin)
+                    out[begin:begin + done] = to_uint8(np.asarray(pictures[:done]))
+                    bar.update(done)
         return out
 
     def _warn_if_clipped(self, frames: np.ndarray) -> None:

@@ -134,6 +134,9 @@ SLOW = [
     "tests/test_robustness.py::test_any_placement_and_scale_in_float64[0.0-1e+20]",
     "tests/test_robustness.py::test_any_placement_and_scale_in_float64[100000000.0-1.0]",
     "tests/test_descents.py::test_structured_descents_keep_float32",
+    # A dataset written by two processes of one jax.distributed job (the same written by
+    # two calls of one process stays).
+    "tests/test_generate.py::test_two_processes_with_two_devices_each_write_the_dataset",
     # Many frames: sharded, through the sparse factor, and gradients (test_batching has
     # gradients through vmap).
     "tests/test_animation.py::test_frames_sharded_over_four_devices_give_the_same_result",

@@ -323,6 +323,11 @@ def test_frames_draws_batches_as_bytes_with_silent_progress(renderer, rig, capfd
     assert "2/2" in capfd.readouterr().err
     with pytest.raises(ValueError, match=r"vertices must be \(frames"):
         renderer.frames(frames[0])
+    # On a list of devices (here the one there is) the chunks go to each in turn.
+    np.testing.assert_array_equal(renderer.frames(frames, chunk=2,
+                                                  devices=jax.local_devices()), pictures)
+    with pytest.raises(ValueError, match="devices must be a non-empty list of JAX devices"):
+        renderer.frames(frames, devices=[])
 
 
 @pytest.mark.parametrize(("alpha", "expected"), [("picture", [0.5, 0.0, 0.5, 1.0]),
