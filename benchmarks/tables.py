@@ -26,6 +26,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+import dataset
 import folds
 import jit_method
 import many_rigs
@@ -348,6 +349,11 @@ def many_rigs_table(data: dict, source: str) -> str:
     return _measured_on(data, source) + "\n\n" + many_rigs.format_table(data)
 
 
+def dataset_table(data: dict, source: str) -> str:
+    """`benchmarks/dataset.py`: posed pictures written per second."""
+    return _measured_on(data, source) + "\n\n" + dataset.format_table(data)
+
+
 def robustness_table(data: dict | None, source: str) -> str:
     """`benchmarks/robustness.py`: what happened to the hostile cases."""
     if data is None:
@@ -389,6 +395,7 @@ TABLES = [
     Table(BENCHMARKS, "throughput-batch", _results("throughput"), throughput_batch_table),
     Table(BENCHMARKS, "throughput-floors", _results("throughput"), throughput_floors_table),
     Table(BENCHMARKS, "many-rigs", _results("many_rigs"), many_rigs_table),
+    Table(BENCHMARKS, "dataset", _results("dataset"), dataset_table),
     Table(BENCHMARKS, "interact", _results("interact"), interact_table),
     Table(BENCHMARKS, "render", _results("render"), render_table),
     Table(BENCHMARKS, "render-peers", _results("render"), render_peers_table),

@@ -120,6 +120,10 @@ class DatasetReport:
             shape that could not be rigged, poses that kept folding).
         sprites: the sprites this process was given (by name), in order.
         seconds: wall time of the call.
+        stages: where the time went, in seconds: `"rig"` (reading the sprites, meshing,
+            rigging, building the renderers), `"pose"` (posing, compiling included),
+            `"draw"` (drawing, compiling included) and `"write"` (compressing and
+            writing the files).
         rejected: random poses drawn again because they folded or left the picture.
     """
 
@@ -128,6 +132,8 @@ class DatasetReport:
     skipped: dict = dataclasses.field(default_factory=dict)
     sprites: list = dataclasses.field(default_factory=list)
     seconds: float = 0.0
+    stages: dict = dataclasses.field(
+        default_factory=lambda: dict.fromkeys(("rig", "pose", "draw", "write"), 0.0))
     rejected: int = 0
 
     @property
@@ -140,14 +146,24 @@ class DatasetReport:
 def glyph_sprites(letters: str, font: Any = None, size: int = 96) -> dict:
     """A font's glyphs as sprites for `write_dataset`: `{name: Shape}`, each named
     `U+XXXX` by its code point (names that differ in more than case, for any file
-    system), traced by `mvcjax.datasets.glyph` at `size` pixels from `font` (a path;
-    default DejaVu Sans)."""
+    system), `size` units tall per em, from `font` (a path; default DejaVu Sans).
+
+    Each glyph is traced by `mvcjax.datasets.glyph` at four times `size` and scaled
+    down, so that its outline's pixel steps are a quarter of a unit: smooth edges in
+    pictures drawn about one pixel per unit.
+    """
     from .datasets import glyph
 
     if not isinstance(letters, str) or not letters.strip():
         raise ValueError(f"letters must be a string of visible characters, got {letters!r}.")
-    return {f"U+{ord(c):04X}": glyph(c, font=font, size=size)
-            for c in dict.fromkeys(letters) if not c.isspace()}
+    size = whole_number(size, "size", what=" of pixels per em")
+    sprites = {}
+    for c in dict.fromkeys(letters):
+        if not c.isspace():
+            fine = glyph(c, font=font, size=4 * size)
+            sprites[f"U+{ord(c):04X}"] = type(fine).from_polygon(
+                fine.outer / 4, [h / 4 for h in fine.holes])
+    return sprites
 
 
 def write_dataset(
@@ -253,6 +269,7 @@ def write_dataset(
             bar.update(poses - sum(_unit_size(u, poses, batch) for u in todo))
             if not todo:
                 continue
+            clock = time.perf_counter()
             try:
                 sprite = _Sprite.build(name, sources[name], handles, rig_options, limits,
                                        (rows, cols), fill)
@@ -260,6 +277,7 @@ def write_dataset(
                 _skip(report, name, f"{type(error).__name__}: {error}")
                 bar.update(sum(_unit_size(u, poses, batch) for u in todo))
                 continue
+            clock = _lap(report, "rig", clock)
             for unit in todo:
                 rng = np.random.default_rng([seed, zlib.crc32(name.encode()), unit])
                 drawn = sprite.pose(rng, batch, devices)
@@ -270,10 +288,13 @@ def write_dataset(
                     break
                 targets, vertices, rejected = drawn
                 keep = _unit_size(unit, poses, batch)
+                clock = _lap(report, "pose", clock)
                 pictures = sprite.renderer.frames(vertices[:keep], chunk=min(batch, 16),
                                                   progress=False, devices=devices)
+                clock = _lap(report, "draw", clock)
                 _write_unit(_unit_path(out, name, unit), sprite, targets[:keep], pictures,
                             unit, process_index)
+                clock = _lap(report, "write", clock)
                 report.written += keep
                 report.rejected += rejected
                 bar.update(keep)
@@ -432,6 +453,12 @@ def _sources(sprites) -> tuple[dict, dict]:
                 skipped[name] = f"unreadable picture ({type(error).__name__}: {error})"
                 _warn(name, skipped[name])
     return {k: sources[k] for k in sorted(sources) if k not in skipped}, skipped
+
+
+def _lap(report: DatasetReport, stage: str, since: float) -> float:
+    now = time.perf_counter()
+    report.stages[stage] += now - since
+    return now
 
 
 def _warn(name: str, reason: str) -> None:
