@@ -122,12 +122,9 @@ SLOW = [
     "tests/test_solver_options.py::test_an_overflowing_energy_is_not_converged"
     "[JaxoptGaussNewton()]",
     # Structured descents against optimistix's at one damping; the other three here.
-    "tests/test_descents.py::test_structured_descent_steps_are_optimistix_steps[*-10.0-*",
-    "tests/test_descents.py::test_structured_descent_steps_are_optimistix_steps[*-0.3-*",
-    "tests/test_descents.py::test_structured_descent_steps_are_optimistix_steps[*-0.001-*",
-    "tests/test_descents.py::test_structured_loop_is_optimistix_gauss_newton_loop[Dogleg]",
-    "tests/test_descents.py::test_structured_loop_is_optimistix_gauss_newton_loop"
-    "[LevenbergMarquardt]",
+    "tests/test_descents.py::test_structured_descent_steps_are_optimistix_steps[*-10.0]",
+    "tests/test_descents.py::test_structured_descent_steps_are_optimistix_steps[*-0.3]",
+    "tests/test_descents.py::test_structured_descent_steps_are_optimistix_steps[*-0.001]",
     # Placements and scales: 1e3 and 1e-20 kept.
     "tests/test_robustness.py::test_any_placement_and_scale_in_float64[100000.0-1.0]",
     "tests/test_robustness.py::test_any_placement_and_scale_in_float64[1.0-0.001]",

@@ -1,13 +1,10 @@
 """Optimistix descents that solve each step's linear problem with the energy's structure
 (`GaussNewtonMatrix`): Gauss-Newton's, Levenberg-Marquardt's and the dogleg's.
 
-Optimistix hands its descents the Jacobian as an operator. In the structured loop
-(`_StructuredGaussNewton`: optimistix's Gauss-Newton step, linearised in closed form)
-that operator is a `StructuredJacobian`, which carries the point's linearisation, so
-the descent builds the Gauss-Newton matrix from it without gathering the point again;
-in optimistix's loop (a `jax.linearize`) the descent builds it from the point `y`,
-which optimistix also hands it. The searches (Armijo backtracking, the classical trust
-region) and the stopping tests stay optimistix's.
+Optimistix's own Gauss-Newton loop runs them: it hands each descent the point `y`, from
+which the descent builds the Gauss-Newton matrix in closed form, and the Jacobian (a
+`jax.linearize` of the residuals), which its searches (Armijo backtracking, the classical
+trust region) and the dogleg use. The loop and its stopping test stay optimistix's.
 """
 
 from __future__ import annotations
@@ -21,7 +18,7 @@ import lineax as lx
 import optimistix as optx
 from jaxtyping import Array, Float
 
-from ._least_squares import ScaledProblem, StructuredJacobian
+from ._least_squares import ScaledProblem
 from ._normal_cg import GaussNewtonMatrix
 
 
@@ -44,10 +41,8 @@ class _StructuredDescent(optx.AbstractDescent):
     cg_deflate: bool = eqx.field(static=True, default=True)
 
     def _matrix(self, y, f_info: optx.FunctionInfo.ResidualJac) -> GaussNewtonMatrix:
-        # The structured loop's Jacobian carries the point's linearisation; optimistix's
-        # own (a `jax.linearize`) does not, and then it is computed again.
-        at = f_info.jac.at if isinstance(f_info.jac, StructuredJacobian) else None
-        return GaussNewtonMatrix.at(self.problem, self.normal, self.preconditioner, y, at)
+        del f_info
+        return GaussNewtonMatrix.at(self.problem, self.normal, self.preconditioner, y)
 
     def _previous(self, y) -> _Previous:
         # At the start there is no step yet: the previous point is this one (a zero step

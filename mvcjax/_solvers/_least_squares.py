@@ -6,7 +6,6 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import lineax as lx
 from jaxtyping import Array, Complex, Float, Int
 
 from .._energy import NORMAL_WEIGHT, Energy, total_energy
@@ -134,15 +133,6 @@ class ScaledProblem(eqx.Module):
             turn=1j * v * length_scale(squared, jnp.ones_like(squared)),
             scale=scale, turned=scale * v)
 
-    def jacobian_product(self, at: Linearisation, dy: Float[Array, "2 n"]) -> Float[Array, "2 r"]:
-        """`J dy` at the linearisation `at`: row `r` is `W_r^{1/2} (I - c_r P_r) D_r dy`
-        with `P_r` the projection across its vector, the mean value rows linear."""
-        d = self.stencils(dy)
-        across = jnp.real(jnp.conj(at.turn) * d)
-        mvc = apply_stencils(self.linear_rows, self.linear_coef, dy)
-        r = jnp.concatenate([self.row_weight * (d - at.scale * across * at.turn), mvc])
-        return jnp.stack([jnp.real(r), jnp.imag(r)])
-
     def energy_at(self, y: Float[Array, "2 n"]) -> Float[Array, ""]:
         """The energy (6) at `y`, by `mvcjax.advanced.total_energy` (what solvers report)."""
         return total_energy(self.energy, self.unscaled(y), self.targets)
@@ -166,8 +156,8 @@ class ScaledProblem(eqx.Module):
 
 
 class Linearisation(eqx.Module):
-    """The scaled residuals at a point and what their Jacobian there needs: point data
-    only, so that a solver carries it from step to step without the problem.
+    """The scaled residuals at a point and what their Jacobian there needs, from which
+    `GaussNewtonMatrix` builds the Gauss-Newton matrix in closed form.
 
     Attributes:
         residual: `(2, r)` the residuals (`ScaledProblem.residuals`).
@@ -181,46 +171,3 @@ class Linearisation(eqx.Module):
     turn: Complex[Array, " m"]
     scale: Float[Array, " m"]
     turned: Complex[Array, " m"]
-
-
-class StructuredJacobian(lx.AbstractLinearOperator):
-    """The Jacobian of a `ScaledProblem`'s residuals at a `Linearisation`, as a lineax
-    operator: what optimistix's searches and dogleg ask of `FunctionInfo.ResidualJac`
-    (`mv`), in closed form instead of a `jax.linearize` of the residuals."""
-
-    problem: ScaledProblem
-    at: Linearisation
-
-    def mv(self, vector):
-        return self.problem.jacobian_product(self.at, vector)
-
-    def as_matrix(self):
-        n = self.problem.energy.num_vertices
-        eye = jnp.eye(2 * n, dtype=self.at.scale.dtype).reshape(2 * n, 2, n)
-        return jax.vmap(self.mv, out_axes=-1)(eye).reshape(-1, 2 * n)
-
-    def transpose(self):
-        transpose = jax.linear_transpose(self.mv, self.in_structure())
-        return lx.FunctionLinearOperator(lambda u: transpose(u)[0], self.out_structure())
-
-    def in_structure(self):
-        n = self.problem.energy.num_vertices
-        return jax.ShapeDtypeStruct((2, n), self.at.scale.dtype)
-
-    def out_structure(self):
-        return jax.ShapeDtypeStruct(self.at.residual.shape, self.at.residual.dtype)
-
-
-# lineax asks these of every operator (its structure checks, materialising); the
-# Jacobian of the residuals has no special structure of those kinds.
-for _check in (lx.is_symmetric, lx.is_diagonal, lx.is_tridiagonal, lx.has_unit_diagonal,
-               lx.is_lower_triangular, lx.is_upper_triangular, lx.is_positive_semidefinite,
-               lx.is_negative_semidefinite):
-    _check.register(StructuredJacobian)(lambda operator: False)
-lx.linearise.register(StructuredJacobian)(lambda operator: operator)
-lx.materialise.register(StructuredJacobian)(
-    lambda operator: lx.PyTreeLinearOperator(
-        operator.as_matrix().reshape(operator.out_structure().shape
-                                     + operator.in_structure().shape),
-        operator.out_structure()))
-lx.diagonal.register(StructuredJacobian)(lambda operator: jnp.diag(operator.as_matrix()))

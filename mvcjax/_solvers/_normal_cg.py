@@ -44,7 +44,7 @@ import lineax as lx
 from jaxtyping import Array, Complex, Float
 
 from ._base import check_count, check_tolerance, python_scalar
-from ._least_squares import Linearisation, ScaledProblem, default_tol
+from ._least_squares import ScaledProblem, default_tol
 
 
 def _dot(a, b):
@@ -199,11 +199,10 @@ class GaussNewtonMatrix(eqx.Module):
 
     @classmethod
     def at(cls, problem: ScaledProblem, normal: lx.AbstractLinearOperator,
-           preconditioner: lx.AbstractLinearOperator, y: Float[Array, "2 n"],
-           linearisation: Linearisation | None = None) -> GaussNewtonMatrix:
-        """The matrix and the gradient at `y`, from `problem.linearise(y)` (computed
-        unless given)."""
-        at = problem.linearise(y) if linearisation is None else linearisation
+           preconditioner: lx.AbstractLinearOperator, y: Float[Array, "2 n"]
+           ) -> GaussNewtonMatrix:
+        """The matrix and the gradient at `y`, from `problem.linearise(y)`."""
+        at = problem.linearise(y)
         weight = problem.row_weight**2
         normal_point = normal.mv(y)
         gradient = normal_point - problem.stencils_transpose(weight * (at.turned + problem.offset))

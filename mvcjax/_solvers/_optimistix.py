@@ -4,14 +4,12 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from typing import Any
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
-from jaxtyping import Array
 
 from ._base import (
     AbstractSolver,
@@ -27,13 +25,7 @@ from ._descents import (
     StructuredDoglegDescent,
     StructuredNewtonDescent,
 )
-from ._least_squares import (
-    Linearisation,
-    ScaledProblem,
-    StructuredJacobian,
-    check_jacobian_fits,
-    default_tol,
-)
+from ._least_squares import ScaledProblem, check_jacobian_fits, default_tol
 from ._normal_cg import HessianCG, StructuredCG
 
 
@@ -97,12 +89,12 @@ class _OptimistixLeastSquares(AbstractSolver):
         tols = {"rtol": default_tol(dtype) if self.rtol is None else self.rtol,
                 "atol": default_tol(dtype) if self.atol is None else self.atol}
         if structured_cg:
-            return _StructuredGaussNewton(
+            return _GaussNewtonFamily(
                 **tols, descent=structured(
                     problem=problem, normal=factor.normal_operator(),
                     preconditioner=factor.normal_inverse_operator(), cg_steps=linear.steps,
                     cg_rtol=linear.rtol, cg_deflate=linear.deflate),
-                search=search, problem=problem)
+                search=search)
         check_jacobian_fits(problem.energy, dtype,
                             f"{type(self).__name__}(linear_solver={linear!r})",
                             f"the default {type(self).__name__}() or ")
@@ -148,94 +140,6 @@ class _OptimistixLeastSquares(AbstractSolver):
 
         _, energies = jax.lax.scan(body, (y0, dynamic0), length=steps)
         return jnp.concatenate([problem.energy_at(y0)[None], energies])
-
-
-class _StructuredState(eqx.Module):
-    first_step: Array
-    y_eval: Array
-    search_state: Any
-    at: Linearisation  # at the last accepted point: point data only
-    descent_state: Any
-    terminate: Array
-    result: optx.RESULTS
-    num_steps: Array
-
-
-def _converged(rtol, atol, norm, y, y_diff, f, f_diff):
-    """Optimistix's Cauchy test: small changes in both the point and the residuals."""
-    return ((norm(jnp.abs(y_diff) / (atol + rtol * jnp.abs(y))) < 1)
-            & (norm(jnp.abs(f_diff) / (atol + rtol * jnp.abs(f))) < 1))
-
-
-class _StructuredGaussNewton(optx.AbstractLeastSquaresSolver):
-    """`optimistix.AbstractGaussNewton`'s step (as of optimistix 0.1, which
-    `pyproject.toml` pins for that reason) with the residuals and their Jacobian in
-    closed form (`ScaledProblem.linearise`, `StructuredJacobian`) instead of a
-    `jax.linearize` of `fn` each step: the descent, the search and the Cauchy test are
-    the same, and run in the same order, but the point is gathered once per step and
-    the loop carries point data only (the problem is the solver's, a loop constant).
-
-    Attributes:
-        rtol, atol, norm: optimistix's Cauchy termination.
-        descent: a structured descent (reads the Jacobian's linearisation).
-        search: optimistix's search (Armijo backtracking, a trust region).
-        problem: the scaled residuals that `fn` computes.
-    """
-
-    rtol: float
-    atol: float
-    descent: optx.AbstractDescent
-    search: optx.AbstractSearch
-    problem: ScaledProblem
-    norm: Callable = optx.max_norm
-
-    def _info(self, at: Linearisation) -> optx.FunctionInfo.ResidualJac:
-        return optx.FunctionInfo.ResidualJac(at.residual, StructuredJacobian(self.problem, at))
-
-    def init(self, fn, y, args, options, f_struct, aux_struct, tags):
-        del fn, args, options, f_struct, aux_struct, tags
-        # Never read: the first step is always accepted.
-        at = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype),
-                          jax.eval_shape(self.problem.linearise, y))
-        info_struct = eqx.filter_eval_shape(self._info, at)
-        return _StructuredState(
-            first_step=jnp.array(True), y_eval=y,
-            search_state=self.search.init(y, info_struct), at=at,
-            descent_state=self.descent.init(y, info_struct), terminate=jnp.array(False),
-            result=optx.RESULTS.successful, num_steps=jnp.array(0))
-
-    def step(self, fn, y, args, options, state, tags):
-        del fn, args, options, tags
-        at_eval = self.problem.linearise(state.y_eval)
-        info, info_eval = self._info(state.at), self._info(at_eval)
-        step_size, accept, search_result, search_state = self.search.step(
-            state.first_step, y, state.y_eval, info, info_eval, state.search_state)
-
-        def accepted(descent_state):
-            descent_state = self.descent.query(state.y_eval, info_eval, descent_state)
-            terminate = _converged(self.rtol, self.atol, self.norm, state.y_eval,
-                                   state.y_eval - y, at_eval.residual,
-                                   at_eval.residual - state.at.residual)
-            return state.y_eval, at_eval, descent_state, terminate
-
-        def rejected(descent_state):
-            return y, state.at, descent_state, jnp.array(False)
-
-        y, at, descent_state, terminate = jax.lax.cond(accept, accepted, rejected,
-                                                       state.descent_state)
-        y_descent, descent_result = self.descent.step(step_size, descent_state)
-        result = optx.RESULTS.where(search_result == optx.RESULTS.successful, descent_result,
-                                    search_result)
-        return y, _StructuredState(
-            first_step=jnp.array(False), y_eval=y + y_descent, search_state=search_state,
-            at=at, descent_state=descent_state, terminate=terminate, result=result,
-            num_steps=state.num_steps + 1), None
-
-    def terminate(self, fn, y, args, options, state, tags):
-        return state.terminate, state.result
-
-    def postprocess(self, fn, y, aux, args, options, state, tags, result):
-        return y, aux, {}
 
 
 class _GaussNewtonFamily(optx.AbstractGaussNewton):
