@@ -94,6 +94,19 @@ def barycentric_coordinates(
     return np.stack([wa, wb, 1.0 - wa - wb], axis=1)
 
 
+def distance_outside(points: Float[np.ndarray, "n 2"],
+                     triangles: Float[np.ndarray, "n 3 2"]) -> Float[np.ndarray, " n"]:
+    """How far each point lies outside its own triangle, beyond the edge its smallest
+    barycentric coordinate belongs to (0 inside)."""
+    bary = barycentric_coordinates(points, triangles)
+    k = np.argmin(bary, axis=1)
+    rows = np.arange(len(k))
+    edge = np.linalg.norm(triangles[rows, (k + 2) % 3] - triangles[rows, (k + 1) % 3], axis=1)
+    area2 = np.abs(cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0]))
+    # The height over that edge is area2 / edge; the coordinate is the fraction of it.
+    return np.maximum(-bary[rows, k], 0.0) * area2 / np.maximum(edge, 1e-300)
+
+
 def locate_points(
     points: Float[np.ndarray, "n 2"],
     vertices: Float[np.ndarray, "v 2"],

@@ -21,6 +21,11 @@ from ._local_frame import Frame
 from ._module import JittableModule
 from ._xla import materialise
 
+# How far outside the control mesh, in the rig's frame (unit diagonal), a point may lie:
+# a few float32 roundings, so that a control mesh given in float32 (a float32 rig's own
+# shape mesh, say) still carries the points of its boundary.
+OUTSIDE_TOLERANCE = 1e-6
+
 
 class AbstractSkinning(eqx.Module):
     """A way of writing each point inside a control mesh as a weighted sum of control
@@ -43,7 +48,9 @@ class AbstractSkinning(eqx.Module):
         vertices = np.asarray(vertices, np.float64)
         faces = np.asarray(faces, np.int64)
         face, depth = coords.locate_points(points, vertices, faces)
-        outside = np.flatnonzero(depth < -1e-9)
+        outside = np.flatnonzero(depth < 0)
+        outside = outside[coords.distance_outside(points[outside], vertices[faces[face[
+            outside]]]) > OUTSIDE_TOLERANCE]
         if len(outside):
             raise ValueError(
                 f"{len(outside)} of the {len(points)} {what} lie outside the control mesh "

@@ -1,6 +1,10 @@
-"""Shared problems. The suite runs JAX in float64 (a test's choice, never the library's);
-float32 rigs are built with dtype=jnp.float32 where a test is about float32."""
+"""Shared problems. Tests run JAX as users do, in float32 (64-bit floats off); a test
+that needs float64 (agreement with scipy or finite differences to many digits, the
+solvers' internals) is marked `@pytest.mark.float64` (or its module is), and runs with
+`jax_enable_x64` on. Turning it on is the tests' choice, never the library's.
+"""
 
+import contextlib
 import os
 import re
 
@@ -18,7 +22,6 @@ settings.register_profile("default", max_examples=12, derandomize=True)
 settings.register_profile("long", max_examples=300)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 
-jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
@@ -34,9 +37,46 @@ def horse():
     return datasets.horse()
 
 
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    # Fixtures are set up inside the protocol: a float64 test's fixtures are float64 too.
+    # Set globally, not by `jax.enable_x64`'s context, which holds for this thread only:
+    # host callbacks run on XLA's threads.
+    jax.config.update("jax_enable_x64", item.get_closest_marker("float64") is not None)
+    try:
+        yield
+    finally:
+        jax.config.update("jax_enable_x64", False)
+
+
+@contextlib.contextmanager
+def float64_on():
+    """64-bit floats on for a block of a float32 test (a float64 reference), set
+    globally as the marker does."""
+    jax.config.update("jax_enable_x64", True)
+    try:
+        yield
+    finally:
+        jax.config.update("jax_enable_x64", False)
+
+
+def needs_float64(what: str) -> None:
+    if not jax.config.jax_enable_x64:
+        pytest.fail(f"{what} is float64: mark the test @pytest.mark.float64, or use a "
+                    "float32 one.")
+
+
 @pytest.fixture(scope="session")
 def horse_rig(horse):
+    """The horse's rig in float64, for float64 tests."""
+    needs_float64("horse_rig")
     return mvcjax.Rig.build(horse, datasets.horse_handles(), dtype=jnp.float64)
+
+
+@pytest.fixture(scope="session")
+def horse_rig32(horse):
+    """The horse's rig as users build it (float32)."""
+    return mvcjax.Rig.build(horse, datasets.horse_handles())
 
 
 @pytest.fixture(scope="session")

@@ -12,6 +12,9 @@ from mvcjax._batching import with_batching_rule
 
 from conftest import directional_derivatives
 
+# Agreement with references to many digits, and the solvers' internals: in float64.
+pytestmark = pytest.mark.float64
+
 
 def some_frames(rig, count, seed=0, scale=8.0):
     rng = np.random.default_rng(seed)

@@ -19,29 +19,29 @@ def rig32(horse):
 
 
 @pytest.mark.parametrize("solver", ["GaussNewton", mvcjax.GaussNewton, 3])
-def test_a_solver_must_be_an_object(horse_rig, solver):
-    t = drag(horse_rig, np.zeros((5, 2)))
-    renderer = mvcjax.Renderer.build(horse_rig, size=(16, 16))
+def test_a_solver_must_be_an_object(horse_rig32, solver):
+    t = drag(horse_rig32, np.zeros((5, 2)))
+    renderer = mvcjax.Renderer.build(horse_rig32, size=(16, 16))
     picture = np.zeros((16, 16, 4), np.float32)
     expected = {"GaussNewton": "not the string 'GaussNewton'; write mvcjax.GaussNewton()",
                 3: "such as mvcjax.FixedG()"}.get(solver, "the class GaussNewton; write "
                                                           "mvcjax.GaussNewton()")
-    for call in (lambda: horse_rig.deform(t, solver),
-                 lambda: mvcjax.deform_frames(horse_rig, jnp.stack([t, t]), solver=solver),
-                 lambda: mvcjax.fit_targets(horse_rig, renderer, picture, solver=solver)):
+    for call in (lambda: horse_rig32.deform(t, solver),
+                 lambda: mvcjax.deform_frames(horse_rig32, jnp.stack([t, t]), solver=solver),
+                 lambda: mvcjax.fit_targets(horse_rig32, renderer, picture, solver=solver)):
         with pytest.raises(TypeError, match=re.escape(expected)):
             call()
 
 
-def test_ragged_sequences_are_named(horse_rig):
+def test_ragged_sequences_are_named(horse_rig32):
     with pytest.raises(ValueError, match=r"targets must be .*ragged"):
-        horse_rig.deform([[1.0, 2.0], [3.0]])
+        horse_rig32.deform([[1.0, 2.0], [3.0]])
     with pytest.raises(ValueError, match=r"targets must be .*ragged"):
-        mvcjax.deform_frames(horse_rig, [[[1.0, 2.0]], [[3.0]]])
+        mvcjax.deform_frames(horse_rig32, [[[1.0, 2.0]], [[3.0]]])
     with pytest.raises(ValueError, match=r"image must be .*ragged"):
         mvcjax.Shape.from_image([[True, False], [True]])
     with pytest.raises(ValueError, match=r"init must be .*ragged"):
-        horse_rig.deform(horse_rig.handle_positions, init=[[1.0, 2.0], [3.0]])
+        horse_rig32.deform(horse_rig32.handle_positions, init=[[1.0, 2.0], [3.0]])
 
 
 def test_a_weight_must_be_a_number():
@@ -49,19 +49,19 @@ def test_a_weight_must_be_a_number():
         mvcjax.Weights(mvc="stiff")
 
 
-def test_non_finite_init_is_refused(horse_rig):
-    bad = np.full(horse_rig.control_mesh.vertices.shape, np.nan)
+def test_non_finite_init_is_refused(horse_rig32):
+    bad = np.full(horse_rig32.control_mesh.vertices.shape, np.nan)
     with pytest.raises(ValueError, match="init holds NaN"):
-        horse_rig.deform(horse_rig.handle_positions, init=bad)
+        horse_rig32.deform(horse_rig32.handle_positions, init=bad)
     # Traced, the check runs with the program.
     with pytest.raises(Exception, match="init holds NaN"):
-        jax.jit(lambda i: horse_rig.deform(horse_rig.handle_positions, init=i))(bad)
+        jax.jit(lambda i: horse_rig32.deform(horse_rig32.handle_positions, init=i))(bad)
 
 
 @pytest.mark.parametrize("weight", [np.nan, -1.0, np.inf])
-def test_bad_weights_under_jit_raise_instead_of_nan(horse_rig, weight):
-    t = drag(horse_rig, [[10.0, 0.0]] + [[0.0, 0.0]] * 4)
-    deform = jax.jit(lambda w: horse_rig.with_weights(mvcjax.Weights(mvc=w)).deform(t))
+def test_bad_weights_under_jit_raise_instead_of_nan(horse_rig32, weight):
+    t = drag(horse_rig32, [[10.0, 0.0]] + [[0.0, 0.0]] * 4)
+    deform = jax.jit(lambda w: horse_rig32.with_weights(mvcjax.Weights(mvc=w)).deform(t))
     assert np.all(np.isfinite(np.asarray(deform(2.0))))
     with pytest.raises(Exception, match="Weights given under jit or grad must be finite"):
         deform(weight)

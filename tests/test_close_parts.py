@@ -72,6 +72,7 @@ def check_close_parts(horse, rig, monkeypatch, shape_spacing):
         assert other_hoof_moves(bridged, drag) > bound, drag
 
 
+@pytest.mark.float64
 def test_front_hooves_move_independently(horse, horse_rig, monkeypatch):
     check_close_parts(horse, horse_rig, monkeypatch, None)
 

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from mvcjax._coordinates import barycentric_coordinates, locate_points
+from mvcjax._coordinates import barycentric_coordinates, distance_outside, locate_points
 from mvcjax.advanced import mean_value_coordinates
 
 HEXAGON = np.array([[np.cos(a), np.sin(a)] for a in np.linspace(0, 2 * np.pi, 6, endpoint=False)])
@@ -64,3 +64,12 @@ def test_locate_points():
     f = np.array([[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]])
     face, depth = locate_points(np.array([[0.5, 0.1], [0.9, 0.5], [2.0, 2.0]]), v, f)
     assert face[:2].tolist() == [0, 1] and depth[0] > 0 and depth[2] < 0
+
+
+def test_distance_outside_a_triangle():
+    triangle = np.array([[0.0, 0.0], [4.0, 0.0], [0.0, 3.0]])
+    points = np.array([[1.0, 1.0], [1.0, -0.25], [-0.5, 1.0], [2.0, 1.5 + 0.4]])
+    distance = distance_outside(points, np.broadcast_to(triangle, (4, 3, 2)))
+    # Inside; below the bottom edge; left of the left edge; beyond the hypotenuse (whose
+    # normal is (3, 4) / 5: 0.4 up is 0.32 out).
+    np.testing.assert_allclose(distance, [0.0, 0.25, 0.5, 0.32], atol=1e-12)

@@ -19,6 +19,9 @@ from mvcjax._solvers._least_squares import ScaledProblem
 
 from conftest import local_point
 
+# Agreement with references to many digits, and the solvers' internals: in float64.
+pytestmark = pytest.mark.float64
+
 CHOLESKY = lx.Normal(lx.Cholesky())
 # CG to convergence (a looped budget), so that the steps are exact and comparable.
 EXACT = {"cg_steps": 2000, "cg_rtol": 1e-13}

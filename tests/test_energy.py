@@ -10,6 +10,9 @@ from mvcjax._factor import dense_factor, operators
 
 from conftest import directional_derivatives, drag, local_point
 
+# Agreement with references to many digits, and the solvers' internals: in float64.
+pytestmark = pytest.mark.float64
+
 
 def test_every_residual_vanishes_at_rest(horse_rig):
     e, rest = horse_rig.energy, horse_rig.energy.rest

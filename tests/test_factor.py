@@ -13,6 +13,9 @@ from mvcjax.advanced import DenseFactor, FactorSolver, SparseFactor
 
 from conftest import directional_derivatives, drag, local_point
 
+# Agreement with references to many digits, and the solvers' internals: in float64.
+pytestmark = pytest.mark.float64
+
 
 @pytest.fixture(scope="module")
 def small_full(ring_shape):

@@ -42,6 +42,11 @@ def rig64():
     return small_rig(jnp.float64)
 
 
+@pytest.fixture(scope="module")
+def rig32():
+    return small_rig(jnp.float32)
+
+
 def errors_in_pixels(found, truth, pixel):
     return np.linalg.norm(np.asarray(found, np.float64) - np.asarray(truth, np.float64),
                           axis=1) / pixel
@@ -90,6 +95,7 @@ def test_textured_fit_recovers_the_pose_in_float32():  # in conftest.SLOW: a com
     assert renderer.texture.dtype == jnp.float32
 
 
+@pytest.mark.float64
 def test_fit_recovers_the_pose_in_colour_and_from_the_silhouette_in_float64(rig64,
                                                                           monkeypatch):
     renderer, _ = check_fit(rig64, "rgba")
@@ -117,6 +123,7 @@ def test_fit_recovers_the_pose_in_colour_and_from_the_silhouette_in_float64(rig6
     np.testing.assert_array_equal(np.asarray(stuck.steps), 20)
 
 
+@pytest.mark.float64
 def test_silhouette_loss_gradient_matches_finite_differences(rig64):
     # A fixed draw order: the default one follows how far triangles moved, which the
     # finite differences' steps change.
@@ -166,65 +173,65 @@ def test_blur_spreads_a_pixel_into_a_gaussian_and_keeps_its_sum():
 
 
 @pytest.fixture(scope="module")
-def renderer64(rig64):
-    return scene(rig64)[0]
+def renderer32(rig32):
+    return scene(rig32)[0]
 
 
-def test_picture_of_another_size(rig64, renderer64):
+def test_picture_of_another_size(rig32, renderer32):
     with pytest.raises(ValueError, match=r"picture is 40 x 64 pixels.*56 x 64.*size="):
-        mvcjax.fit_targets(rig64, renderer64, np.zeros((40, 64, 4)))
+        mvcjax.fit_targets(rig32, renderer32, np.zeros((40, 64, 4)))
     with pytest.raises(ValueError, match=r"picture is 56 x 50 pixels"):
-        mvcjax.image_loss(rig64, renderer64, rig64.handle_positions, np.zeros((56, 50)),
+        mvcjax.image_loss(rig32, renderer32, rig32.handle_positions, np.zeros((56, 50)),
                           channels="alpha")
 
 
-def test_picture_with_wrong_channels(rig64, renderer64):
-    targets = rig64.handle_positions
+def test_picture_with_wrong_channels(rig32, renderer32):
+    targets = rig32.handle_positions
     with pytest.raises(ValueError, match="picture is RGB, which has no alpha.*mask"):
-        mvcjax.image_loss(rig64, renderer64, targets, np.zeros((56, 64, 3)), channels="alpha")
+        mvcjax.image_loss(rig32, renderer32, targets, np.zeros((56, 64, 3)), channels="alpha")
     with pytest.raises(ValueError, match="^picture: "):
-        mvcjax.image_loss(rig64, renderer64, targets, np.zeros((56, 64, 5)))
+        mvcjax.image_loss(rig32, renderer32, targets, np.zeros((56, 64, 5)))
     with pytest.raises(ValueError, match=r"picture \(a mask\) must hold values in \[0, 1\]"):
-        mvcjax.image_loss(rig64, renderer64, targets, np.full((56, 64), 2.0), channels="alpha")
+        mvcjax.image_loss(rig32, renderer32, targets, np.full((56, 64), 2.0), channels="alpha")
     with pytest.raises(ValueError, match="channels must be 'rgba'.*or 'alpha'"):
-        mvcjax.image_loss(rig64, renderer64, targets, np.zeros((56, 64, 4)), channels="rgb")
+        mvcjax.image_loss(rig32, renderer32, targets, np.zeros((56, 64, 4)), channels="rgb")
 
 
-def test_handles_out_of_the_window(rig64):
-    away = mvcjax.Renderer.build(rig64, size=SIZE, window=(1000.0, 1000.0, 1064.0, 1056.0))
+def test_handles_out_of_the_window(rig32):
+    away = mvcjax.Renderer.build(rig32, size=SIZE, window=(1000.0, 1000.0, 1064.0, 1056.0))
     with pytest.raises(ValueError, match=r"no handle of the rig lies in the renderer's "
                                          r"window.*fit_window"):
-        mvcjax.fit_targets(rig64, away, np.zeros((*SIZE, 4)))
+        mvcjax.fit_targets(rig32, away, np.zeros((*SIZE, 4)))
     # Some handles outside: a warning naming them (then the picture's error, before any
     # compilation).
-    window = mvcjax.fit_window(rig64.shape_mesh.vertices, SIZE)
+    window = mvcjax.fit_window(rig32.shape_mesh.vertices, SIZE)
     half = (window[0], window[1], 0.5 * (window[0] + window[2]), window[3])
-    part = mvcjax.Renderer.build(rig64, size=SIZE, window=half)
+    part = mvcjax.Renderer.build(rig32, size=SIZE, window=half)
     with pytest.warns(UserWarning, match=r"handles \[0, 4\] lie outside.*fit_window"), \
             pytest.raises(ValueError, match="picture is 1 x 1"):
-        mvcjax.fit_targets(rig64, part, np.zeros((1, 1)), channels="alpha")
+        mvcjax.fit_targets(rig32, part, np.zeros((1, 1)), channels="alpha")
 
 
-def test_renderer_for_another_mesh(rig64):
+def test_renderer_for_another_mesh(rig32):
     triangle = (np.array([[0.0, 0.0], [400.0, 0.0], [0.0, 300.0]]), np.array([[0, 1, 2]]))
     renderer = mvcjax.Renderer.build(triangle, size=SIZE)
     with pytest.raises(ValueError, match=r"renderer was built for a mesh of \d+ vertices, "
                                          r"but the rig's shape mesh has \d+.*Renderer.build"):
-        mvcjax.fit_targets(rig64, renderer, np.zeros((*SIZE, 4)))
-    moved = (rig64.shape_mesh.vertices + 1.0, rig64.shape_mesh.faces)
+        mvcjax.fit_targets(rig32, renderer, np.zeros((*SIZE, 4)))
+    moved = (rig32.shape_mesh.vertices + 1.0, rig32.shape_mesh.faces)
     with pytest.raises(ValueError, match="another mesh of the same size"):
-        mvcjax.image_loss(rig64, mvcjax.Renderer.build(moved, size=SIZE),
-                          rig64.handle_positions, np.zeros((*SIZE, 4)))
+        mvcjax.image_loss(rig32, mvcjax.Renderer.build(moved, size=SIZE),
+                          rig32.handle_positions, np.zeros((*SIZE, 4)))
 
 
-def test_bad_options(rig64, renderer64):
+def test_bad_options(rig32, renderer32):
     picture = np.zeros((*SIZE, 4))
     with pytest.raises(ValueError, match="blurs must be one or more numbers >= 0"):
-        mvcjax.fit_targets(rig64, renderer64, picture, blurs=(2.0, -1.0))
+        mvcjax.fit_targets(rig32, renderer32, picture, blurs=(2.0, -1.0))
     with pytest.raises(ValueError, match="steps must be a whole number .*>= 1"):
-        mvcjax.fit_targets(rig64, renderer64, picture, steps=0)
+        mvcjax.fit_targets(rig32, renderer32, picture, steps=0)
     with pytest.raises(TypeError, match="method must be an optimistix Gauss-Newton"):
-        mvcjax.fit_targets(rig64, renderer64, picture, method="lm")
+        mvcjax.fit_targets(rig32, renderer32, picture, method="lm")
 
 
 def test_a_rigid_bone_is_fitted_by_pivot_and_angle():

@@ -13,6 +13,9 @@ from mvcjax import datasets
 
 from conftest import drag
 
+# Agreement with references to many digits, and the solvers' internals: in float64.
+pytestmark = pytest.mark.float64
+
 # Deep enough that its own distance to the minimum (1e-11 of the diagonal) is far below
 # anything the tests compare.
 REFERENCE = mvcjax.FixedG(iterations=5000, rtol=1e-11, stop_early=True, anderson=5)

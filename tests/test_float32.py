@@ -1,48 +1,40 @@
-"""What users run, as they run it: JAX's default 32-bit floats (the rest of the suite
-turns 64-bit floats on), through the default paths, against float64 references."""
+"""What users run, as they run it: JAX's default 32-bit floats, through the default
+paths, against float64 references."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-import pytest
 from test_readme import readme_python_blocks
 
 import mvcjax
 from mvcjax import datasets
 
-
-@pytest.fixture(scope="module")
-def rigs():
-    handles = datasets.horse_handles()
-    with jax.enable_x64(False):
-        rig32 = mvcjax.Rig.build(datasets.horse(), handles)
-    rig64 = mvcjax.Rig.build(datasets.horse(), handles, dtype=jnp.float64)
-    return rig32, rig64
+from conftest import float64_on
 
 
 def test_the_readme_example_runs_in_float32(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    with jax.enable_x64(False):
-        for index, code in enumerate(readme_python_blocks()):
-            scope = {"__name__": "__readme__"}
-            exec(compile(code, f"README.md python block {index}", "exec"), scope)
-            assert scope["vertices"].dtype == jnp.float32
-            assert np.all(np.isfinite(np.asarray(scope["vertices"])))
+    for index, code in enumerate(readme_python_blocks()):
+        scope = {"__name__": "__readme__"}
+        exec(compile(code, f"README.md python block {index}", "exec"), scope)
+        assert scope["vertices"].dtype == jnp.float32
+        assert np.all(np.isfinite(np.asarray(scope["vertices"])))
 
 
-def test_the_default_paths_give_float32_near_float64(rigs):
-    rig32, rig64 = rigs
-    diagonal = float(np.linalg.norm(np.ptp(np.asarray(rig64.shape_mesh.vertices), axis=0)))
-    targets = np.asarray(rig64.handle_positions) + datasets.horse_drag()
-    reference = np.asarray(rig64.deform(targets))
-    with jax.enable_x64(False):
-        assert rig32.shape_mesh.vertices.dtype == jnp.float32
-        t = jnp.asarray(targets, jnp.float32)
-        single = jax.jit(rig32.deform)(t)
-        frames = mvcjax.deform_frames(rig32, jnp.stack([t, t]))
-        unfolded, info = rig32.deform(t, mvcjax.FoldFree(), return_info=True)
-        grad = jax.grad(lambda x: jnp.sum(rig32.deform(x)[:, 1]))(t)
-        picture = mvcjax.Renderer.build(rig32, size=(64, 64))(single)
+def test_the_default_paths_give_float32_near_float64(horse_rig32):
+    rig32 = horse_rig32
+    with float64_on():
+        rig64 = mvcjax.Rig.build(datasets.horse(), datasets.horse_handles(), dtype=jnp.float64)
+        targets = np.asarray(rig64.handle_positions) + datasets.horse_drag()
+        reference = np.asarray(rig64.deform(targets))
+    diagonal = float(np.linalg.norm(np.ptp(reference, axis=0)))
+    assert rig32.shape_mesh.vertices.dtype == jnp.float32
+    t = jnp.asarray(targets, jnp.float32)
+    single = jax.jit(rig32.deform)(t)
+    frames = mvcjax.deform_frames(rig32, jnp.stack([t, t]))
+    unfolded, info = rig32.deform(t, mvcjax.FoldFree(), return_info=True)
+    grad = jax.grad(lambda x: jnp.sum(rig32.deform(x)[:, 1]))(t)
+    picture = mvcjax.Renderer.build(rig32, size=(64, 64))(single)
     for result in (single, frames[0], frames[1]):
         assert result.dtype == jnp.float32
         np.testing.assert_allclose(np.asarray(result), reference, atol=1e-4 * diagonal)

@@ -13,6 +13,9 @@ from mvcjax._folds import largest_safe_step, signed_areas
 
 from conftest import directional_derivatives
 
+# Agreement with references to many digits, and the solvers' internals: in float64.
+pytestmark = pytest.mark.float64
+
 
 def _arm_rig(dtype=jnp.float64):
     """The character with a bone per arm (shoulder to wrist): target rows 2-3 are the

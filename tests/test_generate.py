@@ -239,7 +239,7 @@ def test_two_processes_with_two_devices_each_write_the_dataset(tmp_path):
     # `mvcjax dataset` as two processes of one jax.distributed job, each with two CPU
     # devices: the same pictures as one process on one device.
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2",
-           "JAX_PLATFORMS": "cpu", "JAX_ENABLE_X64": "1"}  # float64, as this suite
+           "JAX_PLATFORMS": "cpu"}
     command = [sys.executable, "-m", "mvcjax", "dataset", "glyphs", str(tmp_path / "two"),
                "--glyphs", "Lo", "--glyph-size", "48", "--poses", "6", "--batch", "4",
                "--size", "48", "--progress", "off", "--coordinator",

@@ -11,6 +11,10 @@ from mvcjax import datasets
 
 from conftest import directional_derivatives, scipy_minimum
 
+# Against scipy and converged references to many digits: in float64 (the float32
+# paths are in test_float32, test_readme and the user-facing modules).
+pytestmark = pytest.mark.float64
+
 SHOULDER = (22.0, 139.0)
 
 

@@ -10,6 +10,9 @@ from mvcjax._solvers._least_squares import ScaledProblem
 
 from conftest import local_point
 
+# Agreement with references to many digits, and the solvers' internals: in float64.
+pytestmark = pytest.mark.float64
+
 
 @pytest.fixture(scope="module")
 def problem(horse_rig):

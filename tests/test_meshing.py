@@ -37,8 +37,8 @@ def test_control_polygon_never_bridges_a_gap(gap):
         assert not polygon.covers(shapely.Point(10 + gap / 2, y))
 
 
-def test_horse_control_mesh_keeps_the_front_legs_apart(horse_rig, horse):
-    region = control_region(horse_rig)
+def test_horse_control_mesh_keeps_the_front_legs_apart(horse_rig32, horse):
+    region = control_region(horse_rig32)
     assert region.covers(horse.polygon)
     # Across the front legs, the control mesh is two separate pieces: nothing bridges the
     # one-pixel slot between them.
@@ -66,9 +66,10 @@ def test_holes_are_respected(ring_shape):
     assert not region.covers(shapely.Point(0.0, 0.0))
     mesh = shapely.union_all([shapely.Polygon(np.asarray(rig.shape_mesh.vertices)[t])
                               for t in np.asarray(rig.shape_mesh.faces)])
-    assert mesh.area == pytest.approx(ring_shape.area, rel=1e-9)
+    assert mesh.area == pytest.approx(ring_shape.area, rel=1e-6)  # float32 vertices
 
 
+@pytest.mark.float64
 def test_close_parts_move_independently(horse):
     """One front hoof dragged: the other follows as in the full solve on the shape mesh,
     not as with a control polygon from a plain offset, whose triangles bridge the slot."""

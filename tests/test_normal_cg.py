@@ -13,6 +13,9 @@ from mvcjax._solvers._normal_cg import GaussNewtonMatrix, conjugate_gradient
 
 from conftest import local_point
 
+# Agreement with references to many digits, and the solvers' internals: in float64.
+pytestmark = pytest.mark.float64
+
 
 def test_conjugate_gradient_solves_a_positive_definite_system():
     rng = np.random.default_rng(0)

@@ -13,6 +13,9 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 
 import mvcjax
 
+# Agreement with references to many digits, and the solvers' internals: in float64.
+pytestmark = pytest.mark.float64
+
 
 @st.composite
 def polygons(draw):

@@ -24,7 +24,19 @@ def picture():
 def rig(picture):
     shape = mvcjax.Shape.from_image(picture)
     handles = [shape.closest_point(p) for p in [(20, 25), (110, 25), (115, 95), (30, 80)]]
+    return mvcjax.Rig.build(shape, handles)
+
+
+@pytest.fixture(scope="module")
+def rig64(picture):
+    """The same rig in float64, for finite differences."""
+    shape = mvcjax.Shape.from_image(picture)
+    handles = [shape.closest_point(p) for p in [(20, 25), (110, 25), (115, 95), (30, 80)]]
     return mvcjax.Rig.build(shape, handles, dtype=jnp.float64)
+
+
+# Pixel values (in [0, 1]) that should agree exactly do, to float32 rounding.
+ROUNDING = 1e-5
 
 
 @pytest.fixture(scope="module")
@@ -47,7 +59,7 @@ def test_rest_pose_draws_the_picture_back(renderer, rig, picture):
     assert out.shape == picture.shape and np.all(np.isfinite(out))
     # Away from the outline the picture comes back to rounding (bilinear lookups at pixel
     # centres); along it, alpha is the mesh's antialiased coverage of the pixel.
-    assert np.abs(out - picture)[inside(picture)].max() < 1e-6
+    assert np.abs(out - picture)[inside(picture)].max() < ROUNDING
     alpha_error = np.abs(out[..., 3] - picture[..., 3])
     assert alpha_error.mean() < 0.01
     assert alpha_error[~morphology.dilation(picture[..., 3] > 0.5, morphology.disk(2))].max() == 0
@@ -57,17 +69,19 @@ def test_a_pose_at_rest_to_rounding_draws_as_the_rest_pose(renderer, rig):
     # The default draw order follows how far triangles moved: moves of rounding size (a
     # solve of the rest targets) must not reorder the triangles along shared edges.
     # (Premultiplied: where coverage is 0 to rounding, the straight colour is anything.)
-    noise = np.random.default_rng(0).normal(scale=1e-12, size=rig.shape_mesh.vertices.shape)
+    noise = np.random.default_rng(0).normal(scale=1e-5, size=rig.shape_mesh.vertices.shape)
     rest = premultiplied(renderer(rig.shape_mesh.vertices))
     for pose in [rig.shape_mesh.vertices + noise, rig.deform(rig.handle_positions)]:
-        np.testing.assert_allclose(premultiplied(renderer(pose)), rest, atol=1e-9)
+        # A reordering would change whole pixels along shared edges; the solve's own
+        # rounding moves the outline's coverage by a little more than a pixel value's.
+        np.testing.assert_allclose(premultiplied(renderer(pose)), rest, atol=10 * ROUNDING)
 
 
 def test_whole_pixel_translation_shifts_the_picture_exactly(renderer, rig):
     rest = premultiplied(renderer(rig.shape_mesh.vertices))
     moved = premultiplied(renderer(rig.shape_mesh.vertices + jnp.array([3.0, -2.0])))
     # Three pixels right, two down (y is up); a pixel's shading sees the same numbers.
-    assert np.abs(moved[2:, 3:] - rest[:-2, :-3]).max() < 1e-9
+    assert np.abs(moved[2:, 3:] - rest[:-2, :-3]).max() < ROUNDING
     assert np.abs(moved[:2]).max() == 0 and np.abs(moved[:, :3]).max() == 0
 
 
@@ -86,7 +100,7 @@ def test_quarter_turn_rotates_the_picture(rig, picture):
     turned = jnp.stack([2 * centre - vertices[:, 1], vertices[:, 0]], axis=1)
     rest, out = premultiplied(r(vertices)), premultiplied(r(turned))
     # A counter-clockwise turn in the plane (y up) is np.rot90 of the pixel grid.
-    assert np.abs(out - np.rot90(rest)).max() < 1e-9
+    assert np.abs(out - np.rot90(rest)).max() < ROUNDING
 
 
 def test_affine_drag_matches_scikit_image_affine_warp(rig, picture):
@@ -104,7 +118,7 @@ def test_affine_drag_matches_scikit_image_affine_warp(rig, picture):
     expected = transform.warp(premultiplied(picture), forward.inverse, order=1)
     target = inside(np.asarray(r(vertices)), margin=3)
     assert target.sum() > 2000
-    assert np.abs(out - expected)[target].max() < 1e-6
+    assert np.abs(out - expected)[target].max() < ROUNDING
 
 
 def test_vmap_and_jit_agree_with_single_frames_without_recompiling(renderer, rig):
@@ -113,7 +127,7 @@ def test_vmap_and_jit_agree_with_single_frames_without_recompiling(renderer, rig
     for frame, picture in zip(frames, batched):
         # Premultiplied: straight colours are ill-conditioned where alpha is tiny.
         np.testing.assert_allclose(premultiplied(renderer(frame)), premultiplied(picture),
-                                   atol=1e-10)
+                                   atol=ROUNDING)
     jitted = jax.jit(lambda v: renderer(v))
     jitted(frames[0])
     before = jitted._cache_size()
@@ -121,7 +135,9 @@ def test_vmap_and_jit_agree_with_single_frames_without_recompiling(renderer, rig
     assert jitted._cache_size() == before
 
 
-def test_gradients_match_finite_differences_inside_and_across_the_edge(rig, picture):
+@pytest.mark.float64
+def test_gradients_match_finite_differences_inside_and_across_the_edge(rig64, picture):
+    rig = rig64
     # A fixed draw order: the default one follows how far triangles moved, which the
     # finite differences' steps change.
     r = mvcjax.Renderer.build(rig, picture, depth=np.zeros(rig.shape_mesh.vertices.shape[0]))
@@ -149,7 +165,9 @@ def premultiplied_jax(p):
     return jnp.concatenate([p[..., :3] * p[..., 3:], p[..., 3:]], axis=-1)
 
 
-def test_gradient_with_respect_to_the_picture(rig, picture):
+@pytest.mark.float64
+def test_gradient_with_respect_to_the_picture(rig64, picture):
+    rig = rig64
     def loss(texture):
         r = mvcjax.Renderer.build(rig, picture)
         r = eqx_replace_texture(r, texture)
@@ -225,7 +243,7 @@ def test_filled_shapes_without_a_picture(rig):
     out = np.asarray(flat(rig.shape_mesh.vertices))
     drawn = out[..., 3] > 0
     np.testing.assert_allclose(out[drawn][:, :3], np.broadcast_to([0.2, 0.4, 0.6],
-                                                                  (drawn.sum(), 3)), atol=1e-9)
+                                                                  (drawn.sum(), 3)), atol=ROUNDING)
     white = mvcjax.Renderer.build(rig, size=(96, 128), fill=(0.2, 0.4, 0.6),
                                   background=(1, 1, 1))
     out = np.asarray(white(rig.shape_mesh.vertices))

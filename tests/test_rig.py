@@ -12,6 +12,10 @@ from mvcjax._topology import boundary_loops
 
 from conftest import directional_derivatives, drag, scipy_minimum
 
+# Against scipy and converged references to many digits: in float64 (the float32
+# paths are in test_float32, test_readme and the user-facing modules).
+pytestmark = pytest.mark.float64
+
 
 def test_public_arrays(horse_rig):
     sm, cm = horse_rig.shape_mesh, horse_rig.control_mesh

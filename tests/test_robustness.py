@@ -40,6 +40,7 @@ def check_rest_and_rigid(rig, diagonal, tol):
     assert np.abs(out - expected).max() <= tol * diagonal
 
 
+@pytest.mark.float64
 @pytest.mark.parametrize("offset, scale", [(1000.0, 1.0), (1e5, 1.0), (1.0, 1e-3), (0.0, 1e-20),
                                            (0.0, 1e20), (1e8, 1.0)])
 def test_any_placement_and_scale_in_float64(offset, scale):
@@ -70,6 +71,7 @@ def test_float32_refuses_a_shape_it_cannot_resolve():
         mvcjax.Rig.build(shape, STAR_HANDLES + 1e5, dtype=jnp.float32)
 
 
+@pytest.mark.float64
 def test_meshes_do_not_depend_on_placement_or_scale():
     # Up to round-off: the greedy choices of the control mesh can tip either way at a
     # tie, so a vertex more or less.
@@ -119,7 +121,8 @@ def comb(teeth=8, width=0.1, slot=0.01):
 def test_comb_with_narrow_slots():
     shape = comb()
     rig = mvcjax.Rig.build(shape, [[0.05, 0.1], [0.05, 0.9], [0.82, 0.9]])
-    check_rest_and_rigid(rig, shape.diagonal, 1e-5)
+    # In float32 the narrow teeth keep a tenth of a thousandth of the diagonal.
+    check_rest_and_rigid(rig, shape.diagonal, 2e-4)
 
 
 @pytest.mark.parametrize("outer, handles", [
@@ -194,9 +197,8 @@ def test_a_bad_control_mesh_of_ones_own_is_explained(faces, message):
 
 
 def test_float64_without_x64_says_how_to_enable_it():
-    with jax.enable_x64(False):
-        with pytest.raises(ValueError, match=r"jax_enable_x64"):
-            mvcjax.Rig.build(mvcjax.Shape.from_polygon(star()), STAR_HANDLES, dtype=jnp.float64)
+    with pytest.raises(ValueError, match=r"jax_enable_x64"):
+        mvcjax.Rig.build(mvcjax.Shape.from_polygon(star()), STAR_HANDLES, dtype=jnp.float64)
 
 
 @pytest.mark.parametrize("handles, error, message", [
@@ -211,6 +213,7 @@ def test_bad_handles_are_explained(handles, error, message):
         mvcjax.Rig.build(mvcjax.Shape.from_polygon(star()), handles)
 
 
+@pytest.mark.float64
 def test_bad_targets_are_explained(small):
     _, rig = small
     with pytest.raises(TypeError, match="real"):
@@ -221,6 +224,7 @@ def test_bad_targets_are_explained(small):
         rig.deform(np.full((2, 2), np.nan))
 
 
+@pytest.mark.float64
 def test_targets_closed_over_inside_jit(small):
     # Closed over, the targets are concrete inside jit: the finiteness check ran a
     # traced comparison and raised TracerBoolConversionError.
@@ -232,6 +236,7 @@ def test_targets_closed_over_inside_jit(small):
     np.testing.assert_allclose(with_weights(1.0), expected, atol=1e-12)
 
 
+@pytest.mark.float64
 def test_far_targets_are_not_reported_converged(small):
     _, rig = small
     t = np.asarray(rig.handle_positions).copy()
@@ -264,6 +269,7 @@ def test_many_rigs_of_one_size_reuse_compiled_code():
     assert counts[1] - counts[0] < 100, counts
 
 
+@pytest.mark.float64
 def test_sparse_rigs_of_one_size_share_a_program_and_keep_their_own_factor(ring_shape):
     # The host's sparse solve used to be a static field hashed by identity: every
     # sparse rig compiled (and kept) programs of its own.

@@ -6,6 +6,9 @@ import pytest
 import mvcjax
 from mvcjax import _skinning, datasets
 
+# Agreement with references to many digits, and the solvers' internals: in float64.
+pytestmark = pytest.mark.float64
+
 METHODS = {"blended": mvcjax.BlendedMVCSkinning, "mvc": mvcjax.MVCSkinning,
            "barycentric": mvcjax.BarycentricSkinning}
 

@@ -15,6 +15,9 @@ from mvcjax import datasets
 
 from conftest import directional_derivatives
 
+# Agreement with references to many digits, and the solvers' internals: in float64.
+pytestmark = pytest.mark.float64
+
 LEAST_SQUARES = [mvcjax.GaussNewton, mvcjax.LevenbergMarquardt, mvcjax.Dogleg]
 
 

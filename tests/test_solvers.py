@@ -16,6 +16,9 @@ from mvcjax import datasets
 
 from conftest import directional_derivatives, drag, scipy_minimum
 
+# Agreement with references to many digits, and the solvers' internals: in float64.
+pytestmark = pytest.mark.float64
+
 TIGHT = {
     # The stopping test bounds the distance to the minimum: 1e-8 of the diagonal.
     "fixed_g": mvcjax.FixedG(iterations=60000, rtol=1e-8, stop_early=True),
