@@ -77,6 +77,7 @@ def test_front_hooves_move_independently(horse, horse_rig, monkeypatch):
     check_close_parts(horse, horse_rig, monkeypatch, None)
 
 
+@pytest.mark.float64
 @pytest.mark.slow
 def test_front_hooves_move_independently_on_a_denser_shape_mesh(horse, monkeypatch):
     rig = mvcjax.Rig.build(horse, datasets.horse_handles(), shape_spacing=3.7)

@@ -234,6 +234,7 @@ def test_bad_options(rig32, renderer32):
         mvcjax.fit_targets(rig32, renderer32, picture, method="lm")
 
 
+@pytest.mark.float64
 def test_a_rigid_bone_is_fitted_by_pivot_and_angle():
     # A bone's pose fixes only its centre and direction; fitted by its pivot and angle,
     # its targets come back as the true ones, exactly its length apart.
