@@ -76,7 +76,7 @@ def horse_rig(horse):
 @pytest.fixture(scope="session")
 def horse_rig32(horse):
     """The horse's rig as users build it (float32)."""
-    return mvcjax.Rig.build(horse, datasets.horse_handles())
+    return mvcjax.Rig.build(horse, datasets.horse_handles(), dtype=jnp.float32)
 
 
 @pytest.fixture(scope="session")

@@ -12,13 +12,13 @@ from mvcjax._topology import boundary_loops
 
 from conftest import directional_derivatives, drag, scipy_minimum
 
-# Against scipy and converged references to many digits: in float64 (the float32
-# paths are in test_float32, test_readme and the user-facing modules).
-pytestmark = pytest.mark.float64
+# A pose against the same pose computed again, on the horse (about 500 units across) in
+# float32: a few roundings.
+ROUNDING = dict(rtol=0, atol=1e-3)
 
 
-def test_public_arrays(horse_rig):
-    sm, cm = horse_rig.shape_mesh, horse_rig.control_mesh
+def test_public_arrays(horse_rig32):
+    sm, cm = horse_rig32.shape_mesh, horse_rig32.control_mesh
     assert sm.vertices.shape[1] == 2 and sm.faces.shape[1] == 3
     n = cm.vertices.shape[0]
     assert sorted(np.concatenate([cm.outer, cm.inner]).tolist()) == list(range(n))
@@ -30,22 +30,23 @@ def test_public_arrays(horse_rig):
     assert d.max() < 1e-9
 
 
-def test_rest_targets_give_the_rest_shape(horse_rig):
-    out = horse_rig.deform(horse_rig.handle_positions)
-    np.testing.assert_allclose(out, horse_rig.shape_mesh.vertices, atol=1e-9)
+def test_rest_targets_give_the_rest_shape(horse_rig32):
+    out = horse_rig32.deform(horse_rig32.handle_positions)
+    np.testing.assert_allclose(out, horse_rig32.shape_mesh.vertices, **ROUNDING)
 
 
 @pytest.mark.parametrize("angle", [0.3, 0.7, 2.5])
-def test_rigid_motion_of_targets_moves_the_result_rigidly(horse_rig, horse, angle):
+def test_rigid_motion_of_targets_moves_the_result_rigidly(horse_rig32, horse, angle):
     rot = jnp.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
     shift = jnp.array([40.0, -25.0])
-    targets = drag(horse_rig, [[30.0, 10.0], [0, 0], [0, 0], [0, 0], [0, 0]])
-    base = horse_rig.deform(targets)
-    moved = horse_rig.deform(targets @ rot.T + shift)
+    targets = drag(horse_rig32, [[30.0, 10.0], [0, 0], [0, 0], [0, 0], [0, 0]])
+    base = horse_rig32.deform(targets)
+    moved = horse_rig32.deform(targets @ rot.T + shift)
     err = jnp.max(jnp.linalg.norm(moved - (base @ rot.T + shift), axis=1))
     assert float(err) < 1e-3 * horse.diagonal
 
 
+@pytest.mark.float64
 def test_handles_land_at_default_weights(horse_rig, horse):
     # One hoof dragged 60 units: every handle within 0.5% of the diagonal of its target.
     targets = drag(horse_rig, [[60.0, 0.0], [0, 0], [0, 0], [0, 0], [0, 0]])
@@ -54,6 +55,7 @@ def test_handles_land_at_default_weights(horse_rig, horse):
     assert float(miss.max()) < 0.005 * horse.diagonal
 
 
+@pytest.mark.float64
 def test_handle_weight_makes_handles_land(horse_rig):
     # Why the default handle weight is not the paper's 1: the handles then stop short,
     # pulled back by the many rows of the other terms.
@@ -67,6 +69,7 @@ def test_handle_weight_makes_handles_land(horse_rig):
     assert misses[0] > 20 * misses[1]
 
 
+@pytest.mark.float64
 def test_jit_vmap_grad(horse_rig):
     frames = jnp.stack([drag(horse_rig, np.full((5, 2), s)) for s in [0.0, 5.0, 10.0]])
     batched = jax.jit(jax.vmap(lambda t: horse_rig.deform(t)))(frames)
@@ -82,17 +85,17 @@ def test_jit_vmap_grad(horse_rig):
     assert exact == pytest.approx(approx, rel=1e-6)
 
 
-def test_rig_is_a_pytree_and_jits_as_an_argument(horse_rig):
-    leaves = jax.tree.leaves(horse_rig)
+def test_rig_is_a_pytree_and_jits_as_an_argument(horse_rig32):
+    leaves = jax.tree.leaves(horse_rig32)
     assert all(isinstance(x, jax.Array) for x in leaves)
-    out = jax.jit(lambda r, t: r.deform(t))(horse_rig, horse_rig.handle_positions)
-    np.testing.assert_allclose(out, horse_rig.shape_mesh.vertices, atol=1e-9)
+    out = jax.jit(lambda r, t: r.deform(t))(horse_rig32, horse_rig32.handle_positions)
+    np.testing.assert_allclose(out, horse_rig32.shape_mesh.vertices, **ROUNDING)
 
 
 @pytest.mark.parametrize("solver", [mvcjax.FixedG(), mvcjax.GaussNewton(), mvcjax.Dogleg(),
                                     mvcjax.LevenbergMarquardt()],
                          ids=lambda s: type(s).__name__)
-def test_new_targets_or_weights_never_recompile(horse_rig, solver):
+def test_new_targets_or_weights_never_recompile(horse_rig32, solver):
     traces = []
 
     @jax.jit
@@ -100,17 +103,18 @@ def test_new_targets_or_weights_never_recompile(horse_rig, solver):
         traces.append(1)
         return rig.deform(targets, solver)
 
-    deform(horse_rig, horse_rig.handle_positions)
-    deform(horse_rig, drag(horse_rig, np.ones((5, 2))))
-    deform(horse_rig.with_weights(mvcjax.Weights(laplacian=2.0, handle=50.0)),
-           drag(horse_rig, 3 * np.ones((5, 2))))
+    deform(horse_rig32, horse_rig32.handle_positions)
+    deform(horse_rig32, drag(horse_rig32, np.ones((5, 2))))
+    deform(horse_rig32.with_weights(mvcjax.Weights(laplacian=2.0, handle=50.0)),
+           drag(horse_rig32, 3 * np.ones((5, 2))))
     assert len(traces) == 1
     with_weights = jax.jit(lambda r, w: r.with_weights(w))
-    with_weights(horse_rig, mvcjax.Weights(mvc=3.0))
-    with_weights(horse_rig, mvcjax.Weights(mvc=4.0, length=0.5))
+    with_weights(horse_rig32, mvcjax.Weights(mvc=3.0))
+    with_weights(horse_rig32, mvcjax.Weights(mvc=4.0, length=0.5))
     assert with_weights._cache_size() == 1
 
 
+@pytest.mark.float64
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
 def test_float32_and_float64(horse, dtype):
     rig = mvcjax.Rig.build(horse, datasets.horse_handles(), dtype=dtype)
@@ -150,6 +154,7 @@ def ring_full(ring_shape):
                             shape_spacing=9.0, factor=mvcjax.advanced.SparseLU())
 
 
+@pytest.mark.float64
 def test_full_solve_is_on_the_shape_mesh(ring_full):
     sm, cm = ring_full.shape_mesh, ring_full.control_mesh
     np.testing.assert_array_equal(cm.vertices, sm.vertices)
@@ -164,6 +169,7 @@ def test_full_solve_is_on_the_shape_mesh(ring_full):
                                atol=1e-10)
 
 
+@pytest.mark.float64
 def test_full_solve_reaches_the_scipy_minimum(ring_full, ring_shape):
     targets = drag(ring_full, [[5.0, 2.0], [0.0, 0.0]])
     solver = mvcjax.FixedG(iterations=5000, rtol=1e-11, stop_early=True, anderson=5)
@@ -176,6 +182,7 @@ def test_full_solve_reaches_the_scipy_minimum(ring_full, ring_shape):
     assert float(info.energy) == pytest.approx(minimum_energy, rel=1e-8)
 
 
+@pytest.mark.float64
 @pytest.mark.parametrize("name", ["GaussNewton", "Dogleg", "LevenbergMarquardt"])
 def test_structured_solvers_run_on_the_sparse_factor(ring_full, ring_shape, name):
     # The default optimistix solvers need N and N^{-1} only: the host's sparse solve
@@ -209,16 +216,17 @@ def test_a_dense_jacobian_that_does_not_fit_is_refused(horse):
     assert bool(jnp.all(jnp.isfinite(full.deform(full.handle_positions + 5.0))))
 
 
-def test_user_control_mesh(horse, horse_rig):
-    cm = horse_rig.control_mesh
+def test_user_control_mesh(horse, horse_rig32):
+    cm = horse_rig32.control_mesh
     rig = mvcjax.Rig.build(horse, datasets.horse_handles(),
                            control=mvcjax.GivenControl(np.asarray(cm.vertices),
                                                        np.asarray(cm.faces)))
     assert rig.control_mesh.outer.shape == cm.outer.shape
     targets = drag(rig, [[30.0, 0.0], [0, 0], [0, 0], [0, 0], [0, 0]])
-    np.testing.assert_allclose(rig.deform(targets), horse_rig.deform(targets), atol=1e-6)
+    np.testing.assert_allclose(rig.deform(targets), horse_rig32.deform(targets), **ROUNDING)
 
 
+@pytest.mark.float64
 def test_options_as_objects_build_what_the_old_spellings_do(horse, horse_rig):
     cm = horse_rig.control_mesh
     handles = datasets.horse_handles()
@@ -258,7 +266,7 @@ def test_older_spellings_are_refused_with_the_object_to_write(horse, option, spe
         mvcjax.Rig.build(horse, datasets.horse_handles(), control_spacing=40.0)
 
 
-def test_bad_handles_and_targets_are_explained(horse, horse_rig):
+def test_bad_handles_and_targets_are_explained(horse, horse_rig32):
     with pytest.raises(ValueError, match=r"handles\[1\].*outside the shape.*closest point"):
         mvcjax.Rig.build(horse, [[100.0, 200.0], [5.0, 5.0]])
     with pytest.raises(ValueError, match="same spot"):
@@ -266,9 +274,9 @@ def test_bad_handles_and_targets_are_explained(horse, horse_rig):
     with pytest.raises(ValueError, match=r"shape \(h, 2\)"):
         mvcjax.Rig.build(horse, np.zeros((0, 2)))
     with pytest.raises(ValueError, match=r"targets must have shape \(5, 2\)"):
-        horse_rig.deform(jnp.zeros((4, 2)))
+        horse_rig32.deform(jnp.zeros((4, 2)))
     with pytest.raises(ValueError, match="NaN or infinite"):
-        horse_rig.deform(horse_rig.handle_positions.at[0, 0].set(jnp.nan))
+        horse_rig32.deform(horse_rig32.handle_positions.at[0, 0].set(jnp.nan))
     with pytest.raises(ValueError, match="finite number >= 0"):
         mvcjax.Weights(length=-1.0)
     with pytest.raises(ValueError, match="positive weight"):
@@ -278,7 +286,7 @@ def test_bad_handles_and_targets_are_explained(horse, horse_rig):
     with pytest.raises(ValueError, match="positive length"):
         mvcjax.Rig.build(horse, datasets.horse_handles(), shape_spacing=-1.0)
     with pytest.raises(ValueError, match="not a vertex of the given control mesh"):
-        cm = horse_rig.control_mesh
+        cm = horse_rig32.control_mesh
         mvcjax.Rig.build(horse, [[101.0, 200.0]],
                          control=mvcjax.GivenControl(np.asarray(cm.vertices),
                                                      np.asarray(cm.faces)))
