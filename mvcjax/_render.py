@@ -439,16 +439,23 @@ class Renderer(JittableModule):
                     bar.update(done)
         return out
 
+    def leaves_window(self, frames: Float[ArrayLike, "frames n 2"]) -> np.ndarray:
+        """`(frames,)` whether each frame reaches outside the renderer's window (where it
+        would be cut off)."""
+        frames = np.asarray(frames, np.float64)
+        xmin, ymin, xmax, ymax = np.asarray(self.window, np.float64)
+        with np.errstate(invalid="ignore"):
+            return ((frames[..., 0] < xmin) | (frames[..., 0] > xmax)
+                    | (frames[..., 1] < ymin) | (frames[..., 1] > ymax)).any(axis=-1)
+
     def _warn_if_clipped(self, frames: np.ndarray) -> None:
         """Say once, for a whole animation, that part of it leaves the window (and is
         cut off in every picture that shows it), and how to keep it all."""
-        xmin, ymin, xmax, ymax = np.asarray(self.window, np.float64)
-        with np.errstate(invalid="ignore"):
-            out = ((frames[..., 0] < xmin) | (frames[..., 0] > xmax)
-                   | (frames[..., 1] < ymin) | (frames[..., 1] > ymax)).any(axis=1)
+        out = self.leaves_window(frames)
         if out.any():
             import warnings
 
+            xmin, ymin, xmax, ymax = np.asarray(self.window, np.float64)
             first = int(np.argmax(out))
             warnings.warn(
                 f"{int(out.sum())} of {len(frames)} frames (the first: frame {first}) reach "

@@ -211,7 +211,8 @@ def write_dataset(
         seed: the random seed (an integer); a unit's poses depend on it, the sprite's
             name and the unit's number only.
         batch: poses per unit (per file, and per compiled batch).
-        fill: the colour `(r, g, b)` in [0, 1] of sprites given as a `Shape`.
+        fill: how sprites given as a `Shape` are drawn: a colour `(r, g, b)` in [0, 1],
+            or `"checkerboard"` (`Renderer.build`'s `fill`).
         rig_options: more keyword arguments of `Rig.build` (e.g. `shape_spacing`).
         progress: a progress bar (tqdm): True, False, or None for one on a terminal.
         devices: the devices this process poses and draws on (default: all of
@@ -226,7 +227,7 @@ def write_dataset(
     import jax
 
     from ._progress import progress_bar
-    from ._render import _size
+    from ._render import _fill, _size
 
     started = time.perf_counter()
     poses = whole_number(poses, "poses", what=" of poses per sprite")
@@ -236,7 +237,8 @@ def write_dataset(
         raise TypeError(f"limits must be an mvcjax.generate.PoseLimits, got "
                         f"{type(limits).__name__}.")
     seed = whole_number(seed, "seed", minimum=0)
-    fill = _colour(fill)
+    _fill(fill, np.zeros((1, 2)))  # refused here, naming it, rather than per sprite
+    fill = fill if isinstance(fill, str) else [float(c) for c in fill]  # as JSON has it
     if handles is not None and not callable(handles):
         raise TypeError(f"handles must be a function of the Shape giving its handles, got "
                         f"{type(handles).__name__}.")
@@ -254,12 +256,12 @@ def write_dataset(
     settings = {
         "format": FORMAT, "version": VERSION, "size": [rows, cols], "poses": poses,
         "batch": batch, "seed": seed, "limits": dataclasses.asdict(limits),
-        "fill": list(fill), "handles": _name_of(handles), "rig_options": repr(rig_options),
+        "fill": fill, "handles": _name_of(handles), "rig_options": repr(rig_options),
     }
     out = _open_folder(out, settings)
     mine = list(sources)[process_index::process_count]
     report = DatasetReport(sprites=mine)
-    report.skipped.update({k: v for k, v in skipped.items()})
+    report.skipped.update(skipped)
     units = -(-poses // batch)
     with progress_bar(len(mine) * poses, progress, "posed pictures") as bar:
         for name in mine:
@@ -377,18 +379,16 @@ class _Sprite:
         their targets, deformed vertices and the number rejected; None if too few."""
         import mvcjax
 
-        faces = np.asarray(self.rig.shape_mesh.faces)
-        xmin, ymin, xmax, ymax = np.asarray(self.renderer.window, np.float64)
+        mesh = self.rig.shape_mesh
         kept_targets, kept_vertices, rejected = [], [], 0
         for _ in range(MAX_ROUNDS):
             targets = self.limits.draw(rng, self.rest, self.bones, self.centre, self.size,
                                        count)
             vertices = np.asarray(mvcjax.deform_frames(self.rig, targets, devices=devices))
-            ok = np.isfinite(vertices).all(axis=(1, 2))
-            ok &= ((vertices[..., 0] > xmin) & (vertices[..., 0] < xmax)
-                   & (vertices[..., 1] > ymin) & (vertices[..., 1] < ymax)).all(axis=1)
+            ok = np.isfinite(vertices).all(axis=(1, 2)) & ~self.renderer.leaves_window(vertices)
             if not self.limits.folds:
-                ok &= _folds(vertices, faces) == 0
+                ok &= np.array([mvcjax.flipped_triangles(mesh.vertices, v, mesh.faces) == 0
+                                for v in vertices])
             rejected += int((~ok).sum())
             kept_targets.append(targets[ok])
             kept_vertices.append(vertices[ok])
@@ -396,14 +396,6 @@ class _Sprite:
                 return (np.concatenate(kept_targets)[:count],
                         np.concatenate(kept_vertices)[:count], rejected)
         return None
-
-
-def _folds(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Triangles turned inside out (negative signed area; the shape mesh is
-    counterclockwise at rest) in each frame of `vertices` `(frames, n, 2)`."""
-    a, b, c = (vertices[:, faces[:, i]] for i in range(3))
-    u, v = b - a, c - a
-    return ((u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]) <= 0).sum(axis=1)
 
 
 def _sources(sprites) -> tuple[dict, dict]:
@@ -531,13 +523,6 @@ def _write_unit(path: pathlib.Path, sprite: _Sprite, targets, pictures, unit: in
         process=np.int64(process),
     )
     os.replace(temporary, path)
-
-
-def _colour(fill) -> tuple:
-    colour = np.asarray(fill, np.float64)
-    if colour.shape not in ((3,), (4,)) or not np.all((colour >= 0) & (colour <= 1)):
-        raise ValueError(f"fill must be (r, g, b) or (r, g, b, a) in [0, 1], got {fill!r}.")
-    return tuple(float(c) for c in colour)
 
 
 def _name_of(function) -> str | None:

@@ -401,6 +401,8 @@ def test_frames_say_once_that_an_animation_leaves_the_window(renderer, rig, pict
         renderer.frames(inside)  # within the picture's frame: nothing said
     width = float(renderer.window[2] - renderer.window[0])
     leaving = np.stack([rest + [s * width, 0.0] for s in (0.0, 0.5, 1.0)])
+    np.testing.assert_array_equal(renderer.leaves_window(leaving), [False, True, True])
+    assert not renderer.leaves_window(inside).any()
     said_what = r"2 of 3 frames \(the first: frame 1\).*fit_window"
     with pytest.warns(UserWarning, match=said_what) as said:
         renderer.frames(leaving)
