@@ -217,9 +217,11 @@ def write_dataset(
         progress: a progress bar (tqdm): True, False, or None for one on a terminal.
         devices: the devices this process poses and draws on (default: all of
             `jax.local_devices()`).
-        process_index, process_count: this process's part of the sprites (default:
-            `jax.process_index()` and `jax.process_count()`, which `jax.distributed`
-            sets): sprite `i` of the sorted names goes to process `i % process_count`.
+        process_index: this process's number (default `jax.process_index()`, which
+            `jax.distributed` sets): sprite `i` of the sorted names goes to process
+            `i % process_count`.
+        process_count: how many processes share the sprites (default
+            `jax.process_count()`).
 
     Returns:
         A `DatasetReport` of this process's work.
