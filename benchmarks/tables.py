@@ -34,6 +34,7 @@ import robustness
 import solvers
 import table1
 import throughput
+import vmap_rules
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = "benchmarks/results"
@@ -339,6 +340,11 @@ def table1_table(data: dict, source: str) -> str:
         "", table1.format_table(data["rows"])])
 
 
+def vmap_rules_table(data: dict, source: str) -> str:
+    """`benchmarks/vmap_rules.py`: each kept second implementation against the plain vmap."""
+    return _measured_on(data, source) + "\n\n" + vmap_rules.format_table(data)
+
+
 def jit_method_table(data: dict, source: str) -> str:
     """`benchmarks/jit_method.py`: the ways to jit a rig's frame."""
     return _measured_on(data, source) + "\n\n" + jit_method.format_table(data)
@@ -405,6 +411,7 @@ TABLES = [
     Table("docs/robustness.md", "robustness", _results("robustness"), robustness_table,
           optional=True),
     Table("docs/guide.md", "jit-method", _results("jit_method"), jit_method_table),
+    Table("docs/how-it-works.md", "vmap-rules", _results("vmap_rules"), vmap_rules_table),
 ]
 
 

@@ -122,8 +122,8 @@ class AbstractFactor(eqx.Module):
     steps are taken relative to (`StepData`).
 
     Steps take and return the vertices coordinate-major, as the rows `V^T` of shape
-    `(2, n)`: products then run as `(2, m) @ (m, n)`, which XLA's CPU backend does faster
-    than `(n, m) @ (m, 2)` (`benchmarks/solvers.py` measures the fixed-G step).
+    `(2, n)`, the fixed-G loop's layout, and `(n, 2, f)` for many frames (why: "Vertex
+    layouts" in the docs' how-it-works page).
     """
 
     rows: eqx.AbstractVar[Int[Array, "m 3"]]
@@ -278,12 +278,10 @@ class DenseFactor(AbstractFactor):
         return jnp.stack([jnp.real(b), jnp.imag(b)]) @ self.shape + handle_part.constant
 
     def step_frames(self, vertices, data):
-        # Frames on the last axis, not vmapped: every gather moves rows of contiguous
-        # frames, and the global step is one product for all of them, its result already
-        # in place (another layout costs a transpose every step). The product is
-        # `N^{-1} (A^T W b)`, not `G b`: `A^T W b` is a cheap gather (`spread`), and
-        # `N^{-1}` is `n x n` where `G` is `n x m`, m near 2.3 n on the horse: fewer
-        # flops per frame.
+        # Not vmapped: all frames in one product (the layout: "Vertex layouts" in the
+        # docs' how-it-works page). The product is `N^{-1} (A^T W b)`, not `G b`:
+        # `A^T W b` is a cheap gather (`spread`), and `N^{-1}` is `n x n` where `G` is
+        # `n x m`, m near 2.3 n on the horse: fewer flops per frame.
         def local(coordinate):
             # One gather per stencil column: faster than one gather of all three
             # columns followed by a contraction.

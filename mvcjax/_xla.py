@@ -7,7 +7,7 @@ import jax.numpy as jnp
 
 
 def materialise(tree):
-    """`tree`, computed once into memory.
+    """`tree`, computed once into memory on the CPU backend; unchanged on any other.
 
     XLA's CPU fusion would otherwise compute a gather inside each of its consumers: a
     table lookup once per texel and channel instead of once, or a skinning's sum inside
@@ -18,6 +18,14 @@ def materialise(tree):
     predicate (true unless the first number is not finite) depends on the frame's data,
     since XLA folds one computed from constants (a rig closed over by `jit`). Under vmap
     the conditional becomes a select, which XLA fuses like any other operation.
+
+    Other backends fuse on their own terms, so the conditional is only lowered for the
+    CPU (`jax.lax.platform_dependent` picks the branch when the program is lowered).
     """
-    keep = jnp.isfinite(jax.lax.stop_gradient(jax.tree.leaves(tree)[0].reshape(-1)[0]))
-    return jax.lax.cond(keep, lambda t: t, lambda t: jax.tree.map(lambda a: a + 0, t), tree)
+
+    def on_cpu(tree):
+        keep = jnp.isfinite(jax.lax.stop_gradient(jax.tree.leaves(tree)[0].reshape(-1)[0]))
+        return jax.lax.cond(keep, lambda t: t, lambda t: jax.tree.map(lambda a: a + 0, t),
+                            tree)
+
+    return jax.lax.platform_dependent(tree, cpu=on_cpu, default=lambda t: t)

@@ -63,6 +63,41 @@ def test_vmap_of_deform_solve_and_skin_match_single_frames(horse_rig):
         np.testing.assert_allclose(skinned[k], horse_rig.skin(one), atol=1e-9)
 
 
+def _rule_and_plain(rig, case, frames):
+    """A kept batching rule (or `deform_frames`' skinning into an array) and the plain
+    `jax.vmap` of the single frame's path it replaces, as `benchmarks/vmap_rules.py`
+    times them."""
+    solver = mvcjax.FixedG()
+    local = jax.vmap(rig.frame.to_local)(frames)
+    pinned = jax.vmap(rig.handles.pinned_targets)(local)
+    starts = jax.vmap(lambda t: rig._local_start(t, "turned"))(local)
+    if case == "fixed_g":
+        def solve_with(fn):
+            return jax.vmap(lambda p, s: fn(rig.energy, rig.factor, p, s)[0])(pinned, starts)
+        return solve_with(solver.solve), solve_with(solver._iterate)
+    control = jax.vmap(lambda p, s: solver.solve(rig.energy, rig.factor, p, s)[0])(
+        pinned, starts)
+    plain = jax.vmap(lambda v: _skinning._skin_in(rig.skinning, v, rig.frame))(control)
+    if case == "skinning":
+        return jax.vmap(lambda v: rig.skinning(v, rig.frame))(control), plain
+    out = jnp.full(plain.shape, jnp.nan, plain.dtype)
+    return _skinning.skin_frames_into(rig.skinning, control, rig.frame, out), plain
+
+
+@pytest.mark.parametrize("case", ["fixed_g", "skinning", "skin_into"])
+@pytest.mark.parametrize("rig_name, tolerance", [("horse_rig", 1e-12), ("horse_rig32", 1e-6)],
+                         ids=["float64", "float32"])
+def test_each_kept_rule_agrees_with_the_plain_vmap(request, rig_name, tolerance, case):
+    # The second implementations round differently from JAX's batching of the single
+    # frame's path, and by no more than that: within a few roundings of the shape's size.
+    rig = request.getfixturevalue(rig_name)
+    fast, plain = _rule_and_plain(rig, case, some_frames(rig, 37, seed=6))
+    assert fast.dtype == plain.dtype == rig.shape_mesh.vertices.dtype
+    # Control vertices in the rig's frame (unit diagonal); shape vertices in the user's.
+    size = 1.0 if case == "fixed_g" else float(rig.frame.scale)
+    np.testing.assert_allclose(fast, plain, rtol=0, atol=tolerance * size)
+
+
 def test_vmap_takes_the_batching_rules(horse_rig, monkeypatch):
     # The fixed-G rule steps the frames together; the skinning's is one batched product
     # over blocks of rows, a few frames at a time.

@@ -313,8 +313,7 @@ class FixedG(AbstractSolver):
 
     def _iterate_frames(self, axis_size, in_batched, energy, factor, targets, init):
         """`jax.vmap(self._iterate)` where only the targets (and the starts) vary: all
-        frames step together, laid out frames last (`factor.step_frames`: every gather
-        moves rows of contiguous frames, and the global step is one matrix product)."""
+        frames step together, laid out `(n, 2, f)` (`factor.step_frames`)."""
         if not (only_batched(in_batched, 2, 3) or only_batched(in_batched, 2)):
             return None  # a batch of rigs or weights: JAX's own batching
         init = jnp.broadcast_to(init, (axis_size, *init.shape[-2:]))
