@@ -11,9 +11,8 @@ from mvcjax import datasets
 
 from conftest import directional_derivatives, scipy_minimum
 
-# Against scipy and converged references to many digits: in float64 (the float32
-# paths are in test_float32, test_readme and the user-facing modules).
-pytestmark = pytest.mark.float64
+# Against scipy, finite differences and converged references to many digits: in float64
+# (`bone_rig` and the tests marked); what users run, in float32.
 
 SHOULDER = (22.0, 139.0)
 
@@ -56,6 +55,7 @@ def arm_pins(rig, vertices):
     return np.asarray(vertices)[np.asarray(rig.control_mesh.handles)[rows]]
 
 
+@pytest.mark.float64
 def test_points_are_one_target_and_one_pin_each(horse_rig):
     h = datasets.horse_handles()
     assert horse_rig.handles.count == len(h) and horse_rig.handles.bones.shape == (0, 2)
@@ -64,6 +64,7 @@ def test_points_are_one_target_and_one_pin_each(horse_rig):
     np.testing.assert_allclose(horse_rig.pinned_targets(t), t, atol=1e-12)
 
 
+@pytest.mark.float64
 def test_targets_follow_the_order_the_handles_were_given(bone_rig, character):
     given = character_handles(character)
     rest = np.asarray(bone_rig.handle_positions)
@@ -75,6 +76,7 @@ def test_targets_follow_the_order_the_handles_were_given(bone_rig, character):
     assert "6 handles (2 bones; 8 targets" in repr(bone_rig)
 
 
+@pytest.mark.float64
 def test_a_bone_pins_its_segment_at_about_the_control_spacing(bone_rig):
     rest = arm_pins(bone_rig, bone_rig.control_mesh.vertices)
     assert len(rest) >= 4
@@ -87,7 +89,8 @@ def test_a_bone_pins_its_segment_at_about_the_control_spacing(bone_rig):
     assert np.abs((rest - start) @ np.array([-d[1], d[0]])).max() < 1e-9
 
 
-@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+@pytest.mark.parametrize("dtype", [jnp.float32, pytest.param(jnp.float64,
+                                                               marks=pytest.mark.float64)])
 def test_rest_targets_give_the_rest_shape(character, dtype):
     rig = mvcjax.Rig.build(character.shape, character_handles(character), dtype=dtype)
     moved = rig.deform(rig.handle_positions)
@@ -95,6 +98,7 @@ def test_rest_targets_give_the_rest_shape(character, dtype):
     assert float(jnp.abs(moved - rig.shape_mesh.vertices).max()) < tol * character.shape.diagonal
 
 
+@pytest.mark.float64
 def test_a_rigidly_moved_pose_moves_the_shape_rigidly(bone_rig, character):
     rest = np.asarray(bone_rig.handle_positions)
     targets = np.stack([turned(p, (10.0, 50.0), 35.0) for p in rest]) + [300.0, -40.0]
@@ -107,10 +111,10 @@ def test_a_rigidly_moved_pose_moves_the_shape_rigidly(bone_rig, character):
 @pytest.mark.parametrize("stretch", [False, True])
 def test_a_bone_keeps_its_length_unless_asked_to_stretch(character, stretch):
     rig = mvcjax.Rig.build(character.shape, character_handles(character, stretch),
-                           dtype=jnp.float64, **character.options)
+                           **character.options)
     targets = arm_raised(rig, 50.0, scale=1.3)  # the arm's end dragged 30% further out
     pins = arm_pins(rig, rig.solve(targets, mvcjax.GaussNewton()))
-    rest_length = np.linalg.norm(np.diff(np.asarray(rig.bones[1]), axis=0))
+    rest_length = float(np.linalg.norm(np.diff(np.asarray(rig.bones[1]), axis=0)))
     length = np.linalg.norm(pins[-1] - pins[0])
     # Within the handles' soft pull (weight 100) of the asked length, 30% from the other.
     assert length == pytest.approx(rest_length * (1.3 if stretch else 1.0), rel=1e-2)
@@ -139,6 +143,7 @@ def bone_minimum(bone_rig):
 
 
 @pytest.mark.parametrize("name", list(SOLVERS))
+@pytest.mark.float64
 def test_every_solver_reaches_the_minimum_with_bones(bone_rig, character, bone_minimum, name):
     targets, (minimum, energy) = bone_minimum
     vertices, info = bone_rig.solve(targets, SOLVERS[name], return_info=True)
@@ -148,6 +153,7 @@ def test_every_solver_reaches_the_minimum_with_bones(bone_rig, character, bone_m
     assert float(info.energy) == pytest.approx(energy, rel=1e-8)
 
 
+@pytest.mark.float64
 def test_undamped_gauss_newton_says_when_it_stalls(bone_rig):
     # With the arm raised, jaxopt's undamped Gauss-Newton cycles above the minimum that
     # the damped solvers reach (it converges only for drags of 10 degrees or so): it must
@@ -161,6 +167,7 @@ def test_undamped_gauss_newton_says_when_it_stalls(bone_rig):
     assert float(stalled.energy) > float(damped.energy) * (1 + 1e-6)
 
 
+@pytest.mark.float64
 def test_many_frames_with_bones_match_single_frames(bone_rig):
     targets = jnp.stack([arm_raised(bone_rig, d) for d in (0.0, 30.0, 70.0)])
     frames = mvcjax.deform_frames(bone_rig, targets)
@@ -169,9 +176,10 @@ def test_many_frames_with_bones_match_single_frames(bone_rig):
 
 
 @pytest.mark.parametrize("stretch", [False, True])
+@pytest.mark.float64
 def test_gradients_through_bone_targets_match_finite_differences(character, stretch):
     rig = mvcjax.Rig.build(character.shape, character_handles(character, stretch),
-                           dtype=jnp.float64, **character.options)
+                           **character.options)
     targets = arm_raised(rig, 40.0)
     probe = jax.random.normal(jax.random.key(1), rig.shape_mesh.vertices.shape)
 
@@ -186,7 +194,7 @@ def test_gradients_through_bone_targets_match_finite_differences(character, stre
 def test_bones_sharing_a_joint_pin_it_once(character):
     hip, knee, ankle = (-13.0, 91.0), (-23.0, 51.0), character.handles[4]
     chain = [mvcjax.Bone(hip, knee), mvcjax.Bone(knee, ankle), character.handles[0]]
-    rig = mvcjax.Rig.build(character.shape, chain, dtype=jnp.float64)
+    rig = mvcjax.Rig.build(character.shape, chain)
     pinned = np.asarray(rig.control_mesh.handles)
     assert len(np.unique(pinned)) == len(pinned) - 1  # the knee, pinned by both bones
     t = np.array(rig.handle_positions)
@@ -197,6 +205,7 @@ def test_bones_sharing_a_joint_pin_it_once(character):
     assert np.linalg.norm(knee_vertex - t[1]) < 1e-3 * character.shape.diagonal
 
 
+@pytest.mark.float64
 def test_bones_on_the_full_solve_and_a_control_mesh_of_ones_own(bone_rig, character):
     handles = character_handles(character)
     own = mvcjax.Rig.build(character.shape, handles, dtype=jnp.float64,
@@ -211,6 +220,7 @@ def test_bones_on_the_full_solve_and_a_control_mesh_of_ones_own(bone_rig, charac
     assert np.abs(pins - on_target).max() < 1e-2 * character.shape.diagonal
 
 
+@pytest.mark.float64
 def test_a_control_mesh_of_ones_own_needs_the_bone_ends(bone_rig, character):
     handles = character_handles(character)
     handles[2] = mvcjax.Bone(SHOULDER, (45.0, 131.0))  # ends off the given mesh's vertices
@@ -248,6 +258,7 @@ def test_bad_bones_are_refused(start, end, stretch, match):
         mvcjax.Bone(start, end, stretch=stretch)
 
 
+@pytest.mark.float64
 def test_a_collapsed_bone_target_stays_finite(bone_rig):
     t = np.array(bone_rig.handle_positions)
     t[4] = t[3]  # both ends of the arm bone dragged to one point
@@ -260,6 +271,7 @@ def test_a_collapsed_bone_target_stays_finite(bone_rig):
 # Scales by powers of two: Triangle then meshes the same numbers (its refinement turns a
 # last-bit difference, as other placements give, into another mesh).
 @pytest.mark.parametrize("scale", [2.0**-10, 2.0**13])
+@pytest.mark.float64
 def test_bones_do_not_depend_on_the_shape_s_scale(bone_rig, character, scale):
     offset = np.zeros(2)
 
