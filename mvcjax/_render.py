@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
+from ._batching import with_batching_rule
 from ._checks import as_devices, as_points, kind_of, whole_number
 from ._module import JittableModule
 from ._topology import on_boundary
@@ -382,8 +383,9 @@ class Renderer(JittableModule):
                 raise ValueError(f"window must be (xmin, ymin, xmax, ymax), None or 'grow', "
                                  f"got {window!r}.")
             window = _grown(self.window, vertices, self.shape)
-        return _draw(self, vertices,
-                     self.window if window is None else jnp.asarray(window, self.texture.dtype))
+        window = self.window if window is None else jnp.asarray(window, self.texture.dtype)
+        # Under jax.vmap over frames: one frame after another (`_draw_frames`).
+        return with_batching_rule(_draw, _draw_frames)(self, vertices, window)
 
     def frames(self, vertices: Any, *, chunk: Any = None, progress: Any = None,
                devices: Any = None) -> np.ndarray:
@@ -481,11 +483,23 @@ def _grown(window, vertices, shape: tuple[int, int]):
     return jnp.concatenate([centre - half, centre + half])
 
 
+def _draw_frames(frames: int, in_batched, renderer: Renderer, vertices, window):
+    """`jax.vmap(_draw)` over poses (and windows): one frame after another inside one
+    program. JAX's batching would fuse the batch's shading into larger loops that redo
+    table lookups (`benchmarks/vmap_rules.py` times both)."""
+    renderer_batched, vertices_batched, window_batched = in_batched
+    if any(jax.tree.leaves(renderer_batched)):
+        return None  # a batch of renderers: JAX's own batching
+    if not window_batched:
+        window = jnp.broadcast_to(window, (frames, *window.shape))
+    if not vertices_batched:
+        vertices = jnp.broadcast_to(vertices, (frames, *vertices.shape))
+    return jax.lax.map(lambda vw: _draw(renderer, *vw), (vertices, window)), True
+
+
 @eqx.filter_jit
 def _draw_batch(renderer: Renderer, frames):
-    # One frame after another inside one program: vmapped, XLA fuses the batch's shading
-    # into larger loops that redo table lookups, which is slower than a loop.
-    return jax.lax.map(lambda v: _draw(renderer, v, renderer.window), frames)
+    return jax.vmap(lambda v: renderer(v))(frames)
 
 
 def _mesh_of(mesh) -> tuple[np.ndarray, np.ndarray]:

@@ -139,7 +139,7 @@ def test_fixed_g_vmapped_steps_all_frames_as_plain_batching_would(horse, factor)
     # Under jax.vmap a plain FixedG steps every frame together (frames on the last axis),
     # through its batching rule; JAX's own batching of the loop iterates the same map.
     rig = mvcjax.Rig.build(horse, mvcjax.datasets.horse_handles(), factor=factor)
-    targets = some_frames(rig, 4, seed=3)
+    targets = some_frames(rig, 8, seed=3)  # enough frames for the rule
     local = jax.vmap(rig._pinned)(targets)
     starts = jax.vmap(lambda t: rig.frame.to_local(rig.start(t)))(targets)
     solver = mvcjax.FixedG(iterations=20)

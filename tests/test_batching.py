@@ -112,7 +112,13 @@ def test_vmap_takes_the_batching_rules(horse_rig, monkeypatch):
 
     monkeypatch.setattr(mvcjax.FixedG, "_iterate_frames", count("solve", rule))
     monkeypatch.setattr(_skinning, "_skin_blocks", count("skin", blocks))
-    frames = some_frames(horse_rig, 2)
+    from mvcjax._solvers._fixed_g import FEWEST_FRAMES_STEPPED_TOGETHER as fewest
+
+    # A few frames go through JAX's batching of the single frame's loop, more through
+    # the rule.
+    jax.make_jaxpr(jax.vmap(horse_rig.solve))(some_frames(horse_rig, fewest - 1))
+    assert not calls["solve"]
+    frames = some_frames(horse_rig, fewest)
     control = jax.vmap(horse_rig.solve)(frames)
     assert calls["solve"]
     jax.make_jaxpr(jax.vmap(horse_rig.skin))(control)
@@ -123,7 +129,7 @@ def test_vmap_takes_the_batching_rules(horse_rig, monkeypatch):
     assert calls["skin"]
     calls.update(skin=0)
     both = jax.tree.map(lambda *x: jnp.stack(x), horse_rig.skinning, horse_rig.skinning)
-    jax.make_jaxpr(jax.vmap(lambda s, v: s(v)))(both, control)
+    jax.make_jaxpr(jax.vmap(lambda s, v: s(v)))(both, control[:2])
     assert not calls["skin"]
 
 

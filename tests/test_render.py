@@ -135,6 +135,37 @@ def test_vmap_and_jit_agree_with_single_frames_without_recompiling(renderer, rig
     assert jitted._cache_size() == before
 
 
+def test_vmap_draws_frames_in_turn_as_the_plain_vmap_would_with_gradients(renderer, rig):
+    # jax.vmap(renderer) takes a batching rule (one frame after another, lax.map): the
+    # same pictures as JAX's batching of the single frame's drawing, per-frame windows
+    # ("grow") too, and the gradients of single frames; a batch of renderers is batched
+    # by JAX.
+    from mvcjax._render import _draw
+
+    frames = jnp.stack([rig.shape_mesh.vertices * (1.0 + 0.1 * s) + jnp.array([s, -s])
+                        for s in range(3)])
+    fast = jax.jit(jax.vmap(renderer))(frames)
+    plain = jax.jit(jax.vmap(lambda v: _draw(renderer, v, renderer.window)))(frames)
+    np.testing.assert_allclose(premultiplied(fast), premultiplied(plain), atol=ROUNDING)
+    grown = jax.vmap(lambda v: renderer(v, window="grow"))(frames)
+    for k in range(3):
+        np.testing.assert_allclose(premultiplied(grown[k]),
+                                   premultiplied(renderer(frames[k], window="grow")),
+                                   atol=ROUNDING)
+
+    def loss(v):
+        return jnp.sum(jax.vmap(renderer)(v)[..., :3] ** 2)
+
+    grad = jax.grad(loss)(frames)
+    single = jnp.stack([jax.grad(lambda v: jnp.sum(renderer(v)[..., :3] ** 2))(frames[k])
+                        for k in range(3)])
+    assert float(jnp.abs(single).max()) > 0
+    np.testing.assert_allclose(grad, single, atol=1e-4 * float(jnp.abs(single).max()))
+    both = jax.tree.map(lambda *x: jnp.stack(x), renderer, renderer)
+    pair = jax.vmap(lambda r, v: r(v))(both, frames[:2])
+    np.testing.assert_allclose(premultiplied(pair), premultiplied(fast[:2]), atol=ROUNDING)
+
+
 @pytest.mark.float64
 def test_gradients_match_finite_differences_inside_and_across_the_edge(rig64, picture):
     rig = rig64

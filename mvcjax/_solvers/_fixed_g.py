@@ -38,6 +38,10 @@ from ._normal_cg import hessian_solve
 # nothing, and the cap keeps such solves stoppable.
 CONTRACTION_WINDOW = 32
 MAX_CONTRACTION = 0.999
+# Fewer frames than this under jax.vmap step as JAX batches the single frame's loop,
+# which is faster for a few frames than stepping them together (the `fixed_g` rows of
+# `benchmarks/vmap_rules.py`).
+FEWEST_FRAMES_STEPPED_TOGETHER = 8
 
 
 def _contraction(image_move, move):
@@ -228,7 +232,7 @@ class FixedG(AbstractSolver):
             if self.anderson or self.stop_early:
                 return self._iterate(energy, factor, targets, init)
             # Under jax.vmap over targets, every frame runs in one loop, frames last.
-            return with_batching_rule(self._iterate, self._iterate_frames)(
+            return with_batching_rule(self._iterate, self._frames_rule)(
                 energy, factor, targets, init)
 
         def half_gradient(v):
@@ -310,6 +314,11 @@ class FixedG(AbstractSolver):
             energy=value,
         )
         return vertices, info
+
+    def _frames_rule(self, axis_size, in_batched, *args):
+        if axis_size < FEWEST_FRAMES_STEPPED_TOGETHER:
+            return None
+        return self._iterate_frames(axis_size, in_batched, *args)
 
     def _iterate_frames(self, axis_size, in_batched, energy, factor, targets, init):
         """`jax.vmap(self._iterate)` where only the targets (and the starts) vary: all
