@@ -37,6 +37,7 @@ from ._stencils import (
     length_scale,
     transpose_table,
 )
+from ._xla import to_device
 
 
 def operator_triplets(energy: Energy) -> list[tuple[Array, Array, Array, int]]:
@@ -86,6 +87,14 @@ def _local_rows(
     turned = [t for t in energy.terms() if t.length is not None]
     merged = Stencil.concatenate(*(t.stencil for t in turned))
     return merged.rows, merged.coef, jnp.concatenate([t.length for t in turned])
+
+
+@jax.jit
+def _local_stencil(energy: Energy) -> tuple[Int[Array, "m 3"], Float[Array, "m 3"]]:
+    # One compiled call (cached by shapes) instead of dozens of eager small ones, each
+    # compiled anew for a rig of new sizes.
+    rows, coef, _ = _local_rows(energy)
+    return rows, coef
 
 
 def _local_row_weights(energy: Energy) -> Float[Array, " m"]:
@@ -321,9 +330,10 @@ def dense_factor(energy: Energy, spread: Int[ArrayLike, "n d"] | None = None) ->
                 "dense_factor of a traced energy needs the mesh's spread table: call "
                 "rig.factor.rebuild(energy) (or rig.with_weights) instead."
             )
-        rows, coef, _ = _local_rows(energy)
+        rows, coef = _local_stencil(energy)
         spread = transpose_table(rows, coef, energy.num_vertices)
-    return _dense_factor(energy, jnp.asarray(spread, jnp.int32))
+    return _dense_factor(energy, spread if isinstance(spread, jax.Array)
+                         else to_device(spread, np.int32))
 
 
 @jax.jit
@@ -474,7 +484,7 @@ def sparse_factor(energy: Energy) -> SparseFactor:
     host = _HostSolve(normal.tocsc())
     rows, coef, rest_length, row_weight = _sparse_local_rows(energy)
     dtype = energy.rest.dtype
-    as_int = lambda a: jnp.asarray(a, jnp.int32)  # noqa: E731
+    as_int = lambda a: to_device(a, np.int32)  # noqa: E731
     return SparseFactor(
         rows=rows,
         coef=coef,
@@ -482,11 +492,11 @@ def sparse_factor(energy: Energy) -> SparseFactor:
         row_weight=row_weight,
         normal_rows=as_int(normal.row),
         normal_cols=as_int(normal.col),
-        normal_values=jnp.asarray(normal.data, dtype),
+        normal_values=to_device(normal.data, dtype),
         rest=energy.rest.T,
         handles=energy.handles,
         handle_weight=jnp.asarray(handle.weight, dtype),
-        host_key=jnp.asarray(np.int32(host.key)),
+        host_key=to_device(host.key, np.int32),
         host=host,
     )
 

@@ -23,6 +23,7 @@ from scipy.spatial import cKDTree
 
 from ._checks import as_points
 from ._stencils import length_scale
+from ._xla import to_device
 
 
 class Bone(eqx.Module):
@@ -253,13 +254,13 @@ def pin(points: np.ndarray, bones: list[tuple[int, Bone]], samples, tol: float):
 def make_handles(points, bones, rows, dtype) -> Handles:
     first, second, along, length, rigid = rows
     pairs = np.asarray([[row, row + 1] for row, _ in bones], np.int32).reshape(-1, 2)
-    as_ints = lambda a: jnp.asarray(np.asarray(a, np.int32))  # noqa: E731
+    as_ints = lambda a: to_device(a, np.int32)  # noqa: E731
     return Handles(
-        rest=jnp.asarray(np.asarray(points, dtype)),
+        rest=to_device(points, dtype),
         first=as_ints(first),
         second=as_ints(second),
-        along=jnp.asarray(np.asarray(along, dtype)),
-        length=jnp.asarray(np.asarray(length, dtype)),
-        rigid=jnp.asarray(np.asarray(rigid, bool)),
+        along=to_device(along, dtype),
+        length=to_device(length, dtype),
+        rigid=to_device(rigid, bool),
         bones=as_ints(pairs),
     )

@@ -14,6 +14,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from ._xla import to_device
+
 # The finest detail a rig must resolve, relative to the shape's diagonal: the user's
 # coordinates of a shape far from the origin must still hold it in the rig's dtype.
 RESOLUTION = 1e-5
@@ -73,4 +75,4 @@ def points_to_local(points, frame: tuple[np.ndarray, float]) -> np.ndarray:
 
 
 def frame_array(centre: np.ndarray, scale: float, dtype) -> Frame:
-    return Frame(jnp.asarray(np.asarray(centre, dtype)), jnp.asarray(np.asarray(scale, dtype)))
+    return Frame(to_device(centre, dtype), to_device(scale, dtype))

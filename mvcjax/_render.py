@@ -21,6 +21,7 @@ is `(-0.5, -0.5, cols - 0.5, rows - 0.5)`, where the centre of pixel `(row, col)
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import equinox as eqx
@@ -33,7 +34,7 @@ from ._batching import with_batching_rule
 from ._checks import as_devices, as_points, kind_of, whole_number
 from ._module import JittableModule
 from ._topology import on_boundary
-from ._xla import materialise
+from ._xla import materialise, to_device
 
 # A candidate pixel is inside a triangle when its centre is no further than this outside
 # an edge (in pixels): shared edges then never leave a crack between their triangles.
@@ -315,7 +316,8 @@ class Renderer(JittableModule):
             pixel = extent.max() / 512
             size = tuple(int(max(1, round(e / pixel))) for e in extent[::-1])
         rows, cols = _size(size)
-        texture_points = np.asarray(_to_pixels(vertices, image_window, *picture.shape[:2]))
+        texture_points = np.asarray(_host_to_pixels(vertices, image_window,
+                                                    *picture.shape[:2]))
         if image is not None:
             _check_cover(picture, texture_points, np.asarray(vertices, np.float64),
                          np.asarray(faces))
@@ -326,7 +328,7 @@ class Renderer(JittableModule):
             if depth.shape != (len(vertices),) or not np.all(np.isfinite(depth)):
                 raise ValueError(f"depth must be {len(vertices)} finite numbers, one per rest "
                                  f"vertex of the mesh, got shape {depth.shape}.")
-            level = jnp.asarray(_levels(depth[faces].mean(axis=1)))
+            level = to_device(_levels(depth[faces].mean(axis=1)), np.int32)
         tile, rest = _tiling(vertices, faces, boundary, window, rows, cols, antialias)
         if budget is None:
             budget = 16 * rest + 4 * -(-rows // tile) * -(-cols // tile)
@@ -341,13 +343,13 @@ class Renderer(JittableModule):
             raise ValueError(f"background must be (r, g, b) or (r, g, b, a) in [0, 1], got "
                              f"{background.tolist()}.")
         return cls(
-            faces=jnp.asarray(faces, jnp.int32),
-            boundary=jnp.asarray(boundary),
-            texture_points=jnp.asarray(texture_points, dtype),
-            texture=jnp.asarray(premultiplied, dtype),
-            window=jnp.asarray(window, dtype),
-            background=jnp.asarray(background, dtype),
-            rest=jnp.asarray(vertices, dtype),
+            faces=to_device(faces, np.int32),
+            boundary=to_device(boundary, bool),
+            texture_points=to_device(texture_points, dtype),
+            texture=to_device(premultiplied, dtype),
+            window=to_device(window, dtype),
+            background=to_device(background, dtype),
+            rest=to_device(vertices, dtype),
             level=level,
             shape=(rows, cols),
             budget=int(budget),
@@ -610,16 +612,25 @@ def _tiles(tri, fringe, rows: int, cols: int, tile: int):
 def _tiling(vertices, faces, boundary, window, rows, cols, antialias) -> tuple[int, int]:
     """The tile side with the fewest candidate pixels for the rest mesh, and how many
     tiles that side needs."""
-    tri = _to_pixels(jnp.asarray(vertices[faces], jnp.float32), window, rows, cols)
-    fringe = _fringes(jnp.asarray(boundary), antialias).max(axis=1)
-    counts = {}
-    for tile in _TILES:
-        _, _, across = _tiles(tri, fringe, rows, cols, tile)
-        counts[tile] = int(np.sum(np.prod(np.asarray(across, np.int64), axis=1)))
+    across = _tiles_across(np.asarray(vertices[faces], np.float32), np.asarray(boundary),
+                           np.asarray(window, np.float32), rows, cols, antialias)
+    counts = {tile: int(np.sum(np.prod(np.asarray(a, np.int64), axis=1)))
+              for tile, a in zip(_TILES, across)}
     # A tile is charged as a dozen candidate pixels (its triangle's row, the slot's
     # arithmetic), about its cost against a pixel's.
     tile = min(_TILES, key=lambda t: counts[t] * (t * t + 12))
     return tile, counts[tile]
+
+
+@functools.partial(jax.jit, static_argnums=(3, 4, 5))
+def _tiles_across(corners, boundary, window, rows: int, cols: int, antialias: bool):
+    # One compiled call at build time (cached by sizes) instead of dozens of eager ones.
+    tri = _to_pixels(corners, window, rows, cols)
+    fringe = _fringes(boundary, antialias).max(axis=1)
+    return [_tiles(tri, fringe, rows, cols, tile)[2] for tile in _TILES]
+
+
+_host_to_pixels = jax.jit(_to_pixels, static_argnums=(2, 3))
 
 
 def _fringes(boundary, antialias: bool):

@@ -33,6 +33,7 @@ from ._solvers import DEFAULT_SOLVER, AbstractSolver
 from ._solvers._base import SkinnedMesh
 from ._start import STARTS, start_vertices, turn_weights
 from ._stencils import LAPLACIAN
+from ._xla import to_device
 
 
 class ShapeMesh(eqx.Module):
@@ -69,8 +70,7 @@ class ControlMesh(eqx.Module):
 
 
 def _array(a, dtype) -> Array:
-    # Converted on the host: an XLA conversion compiles a program for every new shape.
-    return jnp.asarray(np.asarray(a, dtype=dtype))
+    return to_device(a, dtype)
 
 
 def _ints(a) -> Array:

@@ -19,7 +19,7 @@ from . import _coordinates as coords, _topology as topology
 from ._batching import only_batched, with_batching_rule
 from ._local_frame import Frame
 from ._module import JittableModule
-from ._xla import materialise
+from ._xla import materialise, to_device
 
 # How far outside the control mesh, in the rig's frame (unit diagonal), a point may lie:
 # a few float32 roundings, so that a control mesh given in float32 (a float32 rig's own
@@ -267,11 +267,9 @@ class Skinning(JittableModule):
         if blocks is None:  # no blocked product (`_skin_frames` maps over the frames)
             blocks = np.zeros((0, 1), np.int64), np.zeros((0, 1, BLOCK_ROWS))
         block_index, block_weight = blocks
-        return cls(jnp.asarray(tile_index.astype(np.int32)),
-                   jnp.asarray(tile_weight.astype(dtype)),
-                   jnp.asarray(slot.astype(np.int32)),
-                   jnp.asarray(block_index.astype(np.int32)),
-                   jnp.asarray(block_weight.astype(dtype)), method)
+        return cls(to_device(tile_index, np.int32), to_device(tile_weight, dtype),
+                   to_device(slot, np.int32), to_device(block_index, np.int32),
+                   to_device(block_weight, dtype), method)
 
     @property
     def indices(self) -> Int[Array, "n k"]:

@@ -4,6 +4,14 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+
+
+def to_device(a, dtype) -> jax.Array:
+    """The host array `a` as a JAX array of `dtype`, converted on the host and moved by
+    `jax.device_put`: `jnp.asarray` stages a copy through a program compiled for every
+    new shape, a few milliseconds each, which a rig of new sizes pays for every array."""
+    return jax.device_put(np.asarray(a, dtype=dtype, order="C"))
 
 
 def materialise(tree):

@@ -39,3 +39,27 @@ def test_past_the_budget_the_caches_are_cleared_and_rigs_still_pose(monkeypatch)
     assert len(_programs._sizes) == 1
     # The first rig compiles anew and poses exactly as before.
     np.testing.assert_array_equal(np.asarray(first.deform(targets)), before)
+
+
+def test_building_a_rig_and_a_renderer_of_new_sizes_compiles_a_few_programs(caplog):
+    # The build's JAX work runs as a few compiled programs, not as dozens of eager
+    # operations each compiled anew for every new size (or arrays staged by jnp.asarray).
+    def build(points, fineness):
+        shape = mvcjax.Shape.from_polygon(star(points))
+        return mvcjax.Rig.build(shape, [(0.0, 0.0), (20.0, 5.0)],
+                                shape_spacing=shape.diagonal / fineness)
+
+    mvcjax.Renderer.build(build(5, 10), size=(32, 32))
+    sizes = set()
+    for points, fineness in [(7, 14), (9, 17)]:
+        with jax.log_compiles(True), caplog.at_level("WARNING"):
+            caplog.clear()
+            rig = build(points, fineness)
+            built = [r.getMessage() for r in caplog.records if "Compiling" in r.getMessage()]
+            caplog.clear()
+            mvcjax.Renderer.build(rig, size=(32 + points, 32 + points))
+            drawn = [r.getMessage() for r in caplog.records if "Compiling" in r.getMessage()]
+        sizes.add(rig.shape_mesh.faces.shape)
+        assert 1 <= len(built) <= 2, built
+        assert 1 <= len(drawn) <= 2, drawn
+    assert len(sizes) == 2  # new sizes each time
