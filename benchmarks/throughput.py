@@ -2,7 +2,8 @@
 floor, and batches of frames through `jax.vmap` and `mvcjax.deform_frames` against a loop
 and against what any batch must cost.
 
-Four parts, float32, FixedG (15 iterations, the paper's), in one run:
+Four parts, float32, the default solver (`rig.deform`'s: FixedG with a fixed number of
+iterations), in one run:
 
 - bandwidth: the machine's streaming bandwidth, measured here as the median time of a
   jitted `x * 2` over a 256 MiB array, in place (read once, written once), and of
@@ -21,7 +22,8 @@ Four parts, float32, FixedG (15 iterations, the paper's), in one run:
   frame (`jax.jit(rig.deform)` and so on) over the same B frames (dispatched
   asynchronously, blocked once at the end): the loop's time over the batch's.
 - floors: in the same turns as the batches, a new `(B, n, 2)` result written once, the
-  same written into donated memory, and the solve's 15 global steps alone; from them,
+  same written into donated memory, and the solve's global steps alone (as many as the
+  default solver takes); from them,
   the best batch / loop ratio any implementation could reach with a new result and
   with reused memory (`ceiling_*`).
 
@@ -224,10 +226,13 @@ def _floors(rig, batches):
         held[0] = write(held[0], t)
         return held[0]
 
+    from mvcjax._solvers import DEFAULT_SOLVER
+
     floors = {"result_fresh": (fresh, batches), "result_reused": (reused, batches)}
     inverse = getattr(rig.factor, "normal_inverse", None)
     if inverse is not None:  # a dense factor (every control mesh of the horse)
-        iterations = mvcjax.FixedG().iterations  # the paper's 15
+        # As many products as the solves timed beside it take.
+        iterations = DEFAULT_SOLVER.iterations
         rhs = [jnp.asarray(np.random.default_rng(k).normal(size=(inverse.shape[0], 2 * frames)),
                            dtype) for k in range(2)]
         products = jax.jit(lambda x: jax.lax.fori_loop(0, iterations, lambda _, v: inverse @ v, x))
