@@ -211,7 +211,6 @@ def _floors(rig, batches):
     import jax.numpy as jnp
     import numpy as np
 
-    import mvcjax
 
     frames = batches[0].shape[0]
     n = rig.shape_mesh.vertices.shape[0]
