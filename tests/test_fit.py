@@ -82,7 +82,11 @@ def check_fit(rig, channels, **options):
     np.testing.assert_allclose(
         history[0, 0], mvcjax.image_loss(rig, renderer, rig.handle_positions, picture,
                                          channels=channels, blur=BLURS[0]), rtol=1e-4)
-    np.testing.assert_allclose(float(result.loss), float(after), rtol=1e-3, atol=1e-12)
+    # The loss reported is the targets' own: near zero (a billionth of the start in
+    # float32) two programs computing it round differently, by less than a hundredth of
+    # the dtype's epsilon times the starting loss.
+    rounding = 1e-2 * float(jnp.finfo(result.targets.dtype).eps) * float(before)
+    np.testing.assert_allclose(float(result.loss), float(after), rtol=1e-3, atol=rounding)
     for stage, steps in zip(history, np.asarray(result.steps)):
         assert np.all(np.diff(stage[:steps]) <= 1e-6 * stage[0])
         assert np.all(np.isnan(stage[steps:]))
