@@ -51,14 +51,18 @@ def smoothness(
 
 def flipped_triangles(
     rest: Float[ArrayLike, "n 2"],
-    deformed: Float[ArrayLike, "n 2"],
+    deformed: Float[ArrayLike, "*frames n 2"],
     faces: Int[ArrayLike, "f 3"],
-) -> int:
-    """How many triangles changed orientation."""
+) -> int | Int[np.ndarray, "*frames"]:
+    """How many triangles changed orientation: an int for one pose `(n, 2)`, an array of
+    counts for poses `(*frames, n, 2)`."""
     faces = np.asarray(faces)
 
     def signed(v):
         v = np.asarray(v, np.float64)
-        return cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
+        corners = v[..., faces, :]  # (..., f, 3, 2)
+        return cross(corners[..., 1, :] - corners[..., 0, :],
+                     corners[..., 2, :] - corners[..., 0, :])
 
-    return int(np.sum(np.sign(signed(rest)) != np.sign(signed(deformed))))
+    counts = np.sum(np.sign(signed(rest)) != np.sign(signed(deformed)), axis=-1)
+    return int(counts) if counts.ndim == 0 else counts

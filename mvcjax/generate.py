@@ -389,8 +389,7 @@ class _Sprite:
             vertices = np.asarray(mvcjax.deform_frames(self.rig, targets, devices=devices))
             ok = np.isfinite(vertices).all(axis=(1, 2)) & ~self.renderer.leaves_window(vertices)
             if not self.limits.folds:
-                ok &= np.array([mvcjax.flipped_triangles(mesh.vertices, v, mesh.faces) == 0
-                                for v in vertices])
+                ok &= mvcjax.flipped_triangles(mesh.vertices, vertices, mesh.faces) == 0
             rejected += int((~ok).sum())
             kept_targets.append(targets[ok])
             kept_vertices.append(vertices[ok])

@@ -27,3 +27,7 @@ def test_flipped_triangles():
     folded[4] = [1.5, 0.5]  # the centre pushed past the right side
     assert flipped_triangles(SQUARE, SQUARE, FAN) == 0
     assert flipped_triangles(SQUARE, folded, FAN) == 1
+    # Many poses at once: a count per pose, as one pose at a time gives.
+    counts = flipped_triangles(SQUARE, np.stack([[SQUARE, folded], [folded, folded]]), FAN)
+    assert counts.shape == (2, 2)
+    np.testing.assert_array_equal(counts, [[0, 1], [1, 1]])
