@@ -39,7 +39,7 @@ from ._normal_cg import hessian_solve
 CONTRACTION_WINDOW = 32
 MAX_CONTRACTION = 0.999
 # Fewer frames than this under jax.vmap step as JAX batches the single frame's loop,
-# which is faster for a few frames than stepping them together (the `fixed_g` rows of
+# which is faster for a few frames than stepping them together (the `fixed_g_few` rows of
 # `benchmarks/vmap_rules.py`).
 FEWEST_FRAMES_STEPPED_TOGETHER = 8
 
