@@ -11,6 +11,7 @@ from . import (
     generate as generate,
 )
 from ._animation import deform_frames as deform_frames
+from ._character import Character as Character, CharacterRenderer as CharacterRenderer
 from ._control import (
     FullSolve as FullSolve,
     GivenControl as GivenControl,
@@ -25,6 +26,7 @@ from ._fit import (
 from ._handles import Bone as Bone
 from ._image import cut_out as cut_out, image_mask as image_mask, load_image as load_image
 from ._interact import Posing as Posing, interact as interact
+from ._layers import Layer as Layer, load_layers as load_layers
 from ._metrics import (
     difference as difference,
     flipped_triangles as flipped_triangles,

@@ -13,6 +13,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Float
 
+from ._character import Character
 from ._checks import as_array, as_devices, check_solver, kind_of, whole_number
 from ._rig import Rig, solve_in_frame
 from ._skinning import skin_frames_into
@@ -95,8 +96,22 @@ def _deform_sharded(rig: Rig, targets, solver: AbstractSolver, chunk: int, mesh:
     )(rig, targets)
 
 
+@eqx.filter_jit
+def _deform_character(character: Character, targets, solver: AbstractSolver, chunk: int):
+    # Part by part, parents first, each part's frames solved as a rig's are.
+    control, out = [None] * len(character.parts), [None] * len(character.parts)
+    for i in character.order:
+        part, parent = character.parts[i], character.parents[i]
+        carried = None if parent < 0 else control[parent]
+        own = jax.vmap(lambda t, c, i=i: character.part_targets(i, t, c))(targets, carried)
+        local = _solve_chunked(part, own, solver, chunk)
+        control[i] = part.frame.to_world(local)
+        out[i] = jax.vmap(lambda v, part=part: part.skinning(v, part.frame))(local)
+    return tuple(out)
+
+
 def deform_frames(
-    rig: Rig,
+    rig: Rig | Character,
     targets: Any,
     solver: Any = DEFAULT_SOLVER,
     *,
@@ -114,7 +129,8 @@ def deform_frames(
     replicated) and the result comes back in frame order.
 
     Args:
-        rig: the rig.
+        rig: the rig, or a `Character` (then the result is a tuple, a part's
+            `(frames, n_i, 2)` each; one device, no `out`).
         targets: `(frames, h, 2)` handle targets, one row of targets per frame.
         solver: the solver of every frame (default: `rig.deform`'s), each from the
             turned start (`Rig.start`).
@@ -137,7 +153,9 @@ def deform_frames(
     refused by index. Under `jax.jit` they cannot be (the values are not known yet), and
     such a frame comes back non-finite while the others are unaffected.
     """
-    h = rig.handles.count
+    character = isinstance(rig, Character)
+    h = rig.rest.shape[0] if character else rig.handles.count
+    dtype = rig.rest.dtype if character else rig.energy.rest.dtype
     check_solver(solver)
     if not isinstance(targets, jax.core.Tracer):
         host = as_array(targets, "targets", f"an array of shape (frames, {h}, 2)")
@@ -161,8 +179,13 @@ def deform_frames(
     if targets.shape[0] == 0:
         raise ValueError("targets hold no frames (shape (0, h, 2)); give at least one frame.")
     devices = as_devices(devices)
-    targets = targets.astype(rig.energy.rest.dtype)
+    targets = targets.astype(dtype)
     frames = targets.shape[0]
+    if character:
+        if out is not None or devices is not None:
+            raise ValueError("deform_frames poses a Character on one device and into new "
+                             "arrays: leave out out= and devices=.")
+        return _deform_character(rig, targets, solver, min(chunk, frames))
     devices = [jax.local_devices()[0]] if devices is None else devices
     if out is not None:
         if len(devices) != 1:

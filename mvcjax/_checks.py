@@ -3,7 +3,10 @@ what was wrong and the fix."""
 
 from __future__ import annotations
 
+import jax
+import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array
 
 _KINDS = {"c": "complex numbers", "b": "booleans", "U": "strings", "S": "bytes",
           "O": "Python objects", "M": "dates", "m": "time spans", "V": "records"}
@@ -70,7 +73,6 @@ def finite_when_traced(array, message: str):
     check, for values traced under `jit` or `grad`, that a concrete value gets on the
     host."""
     import equinox as eqx
-    import jax.numpy as jnp
 
     return eqx.error_if(array, ~jnp.all(jnp.isfinite(array)), message)
 
@@ -88,8 +90,6 @@ def whole_number(value, name: str, minimum: int = 1, what: str = "") -> int:
 
 def as_devices(devices) -> list | None:
     """`devices` as a non-empty list of JAX devices, or None for the default device."""
-    import jax
-
     if devices is None:
         return None
     devices = list(devices) if isinstance(devices, (list, tuple)) else [devices]
@@ -98,3 +98,35 @@ def as_devices(devices) -> list | None:
                          f"jax.local_devices()), got {devices!r}; leave it out for the "
                          "default device.")
     return devices
+
+
+def check_targets(targets, h: int, dtype) -> Array:
+    """`(h, 2)` handle targets as `dtype`, or an error naming the problem: concrete targets
+    (also when closed over inside jit) are checked on the host for their type, shape,
+    finiteness and range; traced ones for their shape and type."""
+    if not isinstance(targets, jax.core.Tracer):
+        host = as_array(targets, "targets", f"an array of shape ({h}, 2)")
+        if host.dtype.kind not in "iuf":
+            raise TypeError(f"targets must be real (x, y) numbers, got {kind_of(host)}; "
+                            f"pass a float array of shape ({h}, 2).")
+        if host.shape == (h, 2) and not np.all(np.isfinite(host)):
+            raise ValueError("targets contain NaN or infinite values; give finite (x, y) "
+                             "targets.")
+        with np.errstate(over="ignore"):
+            representable = np.all(np.isfinite(host.astype(dtype)))
+        if host.shape == (h, 2) and not representable:
+            raise ValueError(
+                f"targets reach {np.abs(host).max():.3g}, beyond {np.dtype(dtype).name}'s "
+                f"range (the rig's precision): give targets in the shape's units, or "
+                "build the rig with dtype=jnp.float64 (after "
+                "jax.config.update('jax_enable_x64', True)).")
+    targets = jnp.asarray(targets)
+    if not jnp.issubdtype(targets.dtype, jnp.floating) and not jnp.issubdtype(
+            targets.dtype, jnp.integer):
+        raise TypeError(f"targets must be real (x, y) numbers, got {targets.dtype.name}.")
+    if targets.shape != (h, 2):
+        raise ValueError(
+            f"targets must have shape ({h}, 2), one (x, y) per handle, got {targets.shape}; "
+            "for several frames, use jax.vmap over a leading axis or mvcjax.deform_frames."
+        )
+    return targets.astype(dtype)

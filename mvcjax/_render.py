@@ -246,12 +246,15 @@ class Renderer(JittableModule):
         alpha: str = "mesh",
         budget: Any = None,
         dtype: Any = None,
-    ) -> Renderer:
+    ) -> Any:  # a Renderer (a CharacterRenderer for a Character)
         """A renderer for a mesh.
 
         Args:
             mesh: a `Rig` (its shape mesh is drawn), a `ShapeMesh`, or a pair
-                `(vertices, faces)` of `(n, 2)` rest vertices and `(f, 3)` triangles.
+                `(vertices, faces)` of `(n, 2)` rest vertices and `(f, 3)` triangles. A
+                `Character` with its layers as `image` gives a `CharacterRenderer`
+                (`window`, `size`, `background`, `antialias`, `alpha`, `budget` and
+                `dtype` apply to every part).
             image: the picture the rest mesh lies on: an array `(rows, cols)`,
                 `(rows, cols, 3)` or `(rows, cols, 4)` (floats in [0, 1] or integers), or a
                 file path. None draws the shape filled with `fill` instead.
@@ -290,6 +293,16 @@ class Renderer(JittableModule):
                 many times over) raises an error saying so.
             dtype: float dtype of the computation; default the mesh's.
         """
+        from ._character import Character, CharacterRenderer
+
+        if isinstance(mesh, Character):
+            if image is None:
+                raise ValueError("A character is drawn with its layers: pass the layers it "
+                                 "was built from as image (Renderer.build(character, "
+                                 "layers)).")
+            return CharacterRenderer.build(mesh, image, window=window, size=size,
+                                           background=background, antialias=antialias,
+                                           alpha=alpha, budget=budget, dtype=dtype)
         vertices, faces = _mesh_of(mesh)
         if dtype is None:
             # The mesh's float type, as JAX has it (float64 only with x64 enabled).
@@ -386,8 +399,8 @@ class Renderer(JittableModule):
                                  f"got {window!r}.")
             window = _grown(self.window, vertices, self.shape)
         window = self.window if window is None else jnp.asarray(window, self.texture.dtype)
-        # Under jax.vmap over frames: one frame after another (`_draw_frames`).
-        return with_batching_rule(_draw, _draw_frames)(self, vertices, window)
+        return straight_rgba(draw_premultiplied(self, vertices, window)).reshape(
+            *self.shape, 4)
 
     def frames(self, vertices: Any, *, chunk: Any = None, progress: Any = None,
                devices: Any = None) -> np.ndarray:
@@ -771,6 +784,20 @@ def _raster(renderer: Renderer, tri, vertices, rows: int, cols: int):
     return face_bits, [front[:-1], jnp.where(back == front, -1, back)[:-1]]
 
 
+def draw_premultiplied(renderer: Renderer, vertices, window) -> Float[Array, "pixels 4"]:
+    """The picture of the mesh at `vertices` over the renderer's background, premultiplied
+    RGBA a pixel a row (row-major): what a layer lays over those beneath. Under
+    `jax.vmap` over frames, one frame after another (`_draw_frames`)."""
+    return with_batching_rule(_draw, _draw_frames)(renderer, vertices, window)
+
+
+def straight_rgba(colour: Float[Array, "*pixels 4"]) -> Float[Array, "*pixels 4"]:
+    """Premultiplied RGBA to straight, in [0, 1] (no colour where nothing covers)."""
+    alpha = colour[..., 3:]
+    straight = jnp.where(jnp.arange(4) < 3, colour / jnp.where(alpha > 0, alpha, 1.0), colour)
+    return jnp.clip(straight, 0.0, 1.0)
+
+
 @eqx.filter_jit
 def _draw(renderer: Renderer, vertices, window):
     rows, cols = renderer.shape
@@ -794,10 +821,7 @@ def _draw(renderer: Renderer, vertices, window):
             partial = jnp.ones_like(partial)
         beneath = jnp.where(partial, layers[1], -1)
         colour = _shade_where(renderer, table, beneath, face_bits, cols, colour)
-    colour = _shade_where(renderer, table, front, face_bits, cols, colour)
-    alpha = colour[:, 3:]
-    straight = jnp.where(jnp.arange(4) < 3, colour / jnp.where(alpha > 0, alpha, 1.0), colour)
-    return jnp.clip(straight, 0.0, 1.0).reshape(rows, cols, 4)
+    return _shade_where(renderer, table, front, face_bits, cols, colour)
 
 
 def _shade_where(renderer: Renderer, table, layer, face_bits: int, cols: int, colour):

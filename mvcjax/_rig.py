@@ -15,6 +15,7 @@ from ._checks import (
     as_array,
     as_points,
     check_solver,
+    check_targets,
     finite_when_traced,
     kind_of,
     whole_number,
@@ -461,35 +462,7 @@ class Rig(JittableModule):
             self.frame.to_local(self._check_targets(targets)), self._check_init(init)))
 
     def _check_targets(self, targets) -> Float[Array, "h 2"]:
-        h = self.handles.count
-        if not isinstance(targets, jax.core.Tracer):
-            # Concrete targets (also when closed over inside jit) are checked on the host.
-            host = as_array(targets, "targets", f"an array of shape ({h}, 2)")
-            if host.dtype.kind not in "iuf":
-                raise TypeError(f"targets must be real (x, y) numbers, got {kind_of(host)}; "
-                                f"pass a float array of shape ({h}, 2).")
-            if host.shape == (h, 2) and not np.all(np.isfinite(host)):
-                raise ValueError("targets contain NaN or infinite values; give finite (x, y) "
-                                 "targets.")
-            dtype = self.energy.rest.dtype
-            with np.errstate(over="ignore"):
-                representable = np.all(np.isfinite(host.astype(dtype)))
-            if host.shape == (h, 2) and not representable:
-                raise ValueError(
-                    f"targets reach {np.abs(host).max():.3g}, beyond {np.dtype(dtype).name}'s "
-                    f"range (the rig's precision): give targets in the shape's units, or "
-                    "build the rig with dtype=jnp.float64 (after "
-                    "jax.config.update('jax_enable_x64', True)).")
-        targets = jnp.asarray(targets)
-        if not jnp.issubdtype(targets.dtype, jnp.floating) and not jnp.issubdtype(
-                targets.dtype, jnp.integer):
-            raise TypeError(f"targets must be real (x, y) numbers, got {targets.dtype.name}.")
-        if targets.shape != (h, 2):
-            raise ValueError(
-                f"targets must have shape ({h}, 2), one (x, y) per handle, got {targets.shape}; "
-                "for several frames, use jax.vmap over a leading axis or mvcjax.deform_frames."
-            )
-        return targets.astype(self.energy.rest.dtype)
+        return check_targets(targets, self.handles.count, self.energy.rest.dtype)
 
     def solve(
         self,

@@ -425,6 +425,120 @@ def sprite_handles() -> list:
             *toes]
 
 
+# The layered figure: the sprite's figure drawn as parts on layers of one canvas, with
+# arms that hang over the torso's sides at rest (drawn over it) and a right hand of its
+# own that holds no handle and follows the arm it overlaps.
+_FIGURE_ARM_OUT = 12.0  # degrees out from hanging straight down
+_FIGURE_HAND = 11.0  # the separate right hand's radius; its centre is past the arm's tip
+_FIGURE_WRIST_IN = 14.0  # the wrist handles sit this far in from the arms' tips
+
+
+def _figure_hands() -> np.ndarray:
+    length, _, _ = _SPRITE_ARM
+    t = np.radians(_FIGURE_ARM_OUT)
+    return np.array([[s[0] + side * length * np.sin(t), s[1] - length * np.cos(t)]
+                     for s, side in zip(_SPRITE_SHOULDERS, (-1.0, 1.0))])
+
+
+def layered_figure() -> list:
+    """A figure drawn in layers, bottom first, for `mvcjax.Character.build`: a list of
+    four `mvcjax.Layer`s on one 240 x 260 canvas (straight RGBA floats).
+
+    `"body"` (head, neck, torso, legs, feet, as `sprite_picture()`'s), `"left arm"`
+    (with its hand) and `"right arm"`, capsules 16 wide and 70 long from the shoulders,
+    hanging 12 degrees out so that they lie over the torso's sides, and `"right hand"`,
+    a disc past the right arm's tip. `layered_figure_handles()` pins it; the right hand
+    holds no handle and follows the right arm.
+    """
+    from PIL import Image, ImageDraw
+
+    from ._image import load_image
+    from ._layers import Layer
+
+    width, height = _SPRITE_SIZE
+
+    def px(p):  # shape coordinates (y up) -> Pillow's (x, y down), pixel centres
+        return (p[0], height - 1 - p[1])
+
+    def layer(draw_on):
+        image = Image.new("RGBA", (width, height), (0, 0, 0, 0))
+        draw_on(ImageDraw.Draw(image))
+        return load_image(image)
+
+    def ellipse(draw, centre, rx, ry, colour):
+        (x, y) = px(centre)
+        draw.ellipse([x - rx, y - ry, x + rx, y + ry], fill=colour)
+
+    def capsule(draw, a, b, radius, colour):
+        draw.line([px(a), px(b)], fill=colour, width=round(2 * radius))
+        for p in (a, b):
+            ellipse(draw, p, radius, radius, colour)
+
+    skin, shirt, sleeve, trousers, shoes = (236, 188, 150, 255), (52, 101, 164, 255), \
+        (32, 74, 135, 255), (60, 60, 70, 255), (120, 70, 30, 255)
+    hands, radius = _figure_hands(), _SPRITE_ARM[2]
+
+    def body(draw):
+        for hip, ankle in zip(_SPRITE_HIPS, _SPRITE_ANKLES):
+            capsule(draw, hip, ankle, _SPRITE_LEG, trousers)
+        for centre, rx, ry in _SPRITE_FEET:
+            ellipse(draw, centre, rx, ry, shoes)
+        (x0, y0), (x1, y1) = _SPRITE_NECK
+        draw.rectangle([*px((x0, y1)), *px((x1, y0))], fill=skin)
+        centre, rx, ry = _SPRITE_TORSO
+        ellipse(draw, centre, rx, ry, shirt)
+        ellipse(draw, _SPRITE_HEAD[0], _SPRITE_HEAD[1], _SPRITE_HEAD[1], skin)
+
+    def left_arm(draw):
+        capsule(draw, _SPRITE_SHOULDERS[0], hands[0], radius, sleeve)
+        ellipse(draw, hands[0], radius + 1.0, radius + 1.0, skin)
+
+    def right_arm(draw):
+        capsule(draw, _SPRITE_SHOULDERS[1], hands[1], radius, sleeve)
+
+    def right_hand(draw):
+        d = hands[1] - np.asarray(_SPRITE_SHOULDERS[1])
+        ellipse(draw, hands[1] + 4.0 * d / np.linalg.norm(d), _FIGURE_HAND, _FIGURE_HAND,
+                skin)
+
+    return [Layer(name, layer(draw)) for name, draw in
+            [("body", body), ("left arm", left_arm), ("right arm", right_arm),
+             ("right hand", right_hand)]]
+
+
+def layered_figure_handles() -> list:
+    """Handles on `layered_figure()`, a list for `Character.build`: a point on the chest,
+    a `Bone` along each arm from its shoulder (inside the torso too, which it pins
+    there) to its wrist (left, then right), and a point on each ankle. Target rows:
+    chest, left shoulder, left wrist, right shoulder, right wrist, left ankle, right
+    ankle (7)."""
+    from ._handles import Bone
+
+    def inward(end, root):
+        d = np.asarray(root) - end
+        return end + _FIGURE_WRIST_IN * d / np.linalg.norm(d)
+
+    chest = (_SPRITE_TORSO[0][0], _SPRITE_TORSO[0][1] + 12.0)
+    return [chest, *[Bone(s, inward(h, s)) for s, h in zip(_SPRITE_SHOULDERS,
+                                                          _figure_hands())],
+            *[tuple(a) for a in _SPRITE_ANKLES]]
+
+
+def layered_figure_wave(frames: int = 30, degrees: float = 110.0) -> np.ndarray:
+    """`(frames, 7, 2)` targets for `layered_figure_handles()`: the right arm swings
+    about its shoulder across the chest, `degrees` clockwise, and back down, everything
+    else at rest."""
+    from ._handles import parse_handles
+
+    rest, _, _ = parse_handles(layered_figure_handles())
+    shoulder = rest[3]
+    turn = np.radians(degrees) * np.sin(np.linspace(0.0, np.pi, frames))
+    targets = np.repeat(rest[None], frames, axis=0)
+    for k, angle in enumerate(turn):
+        targets[k, 4] = _rotate(rest[4], shoulder, -np.degrees(angle))
+    return targets
+
+
 # The snake: a long strip along the x axis.
 _SNAKE = (400.0, 20.0)  # length and width, round ends included
 

@@ -1,0 +1,518 @@
+"""Character: a figure drawn in layers, one rig per part, all posed by one set of handles.
+
+Each layer is a part with its own shape mesh and control mesh (`Rig`), so that an arm
+drawn over the torso at rest is not welded to it. The character's handles are given
+once, on the canvas; each part is pinned by the handles that lie in it (a point in two
+parts pins both, a bone pins a part it lies in as a bone and a part that holds only one
+of its ends at that end). A part with no handle of its own is attached to the part it
+overlaps most: a few of its points where they overlap are pinned to where that part
+carries them, so that a hand follows its arm. Parts are solved in that order, inside one
+compiled program; the character is a pytree like a rig, so it jits, vmaps and
+differentiates.
+
+`CharacterRenderer` draws every part with its own layer as texture and lays them over
+each other in a draw order that each frame may change.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import shapely
+from jaxtyping import Array, ArrayLike, Float, Int
+
+from ._checks import check_solver, check_targets, whole_number
+from ._handles import Bone, Handles, parse_handles
+from ._layers import Layer, load_layers
+from ._module import JittableModule
+from ._render import Renderer, draw_premultiplied, straight_rgba
+from ._rig import Rig, _compiled_when_eager, _thickness
+from ._shape import Shape
+from ._skinning import Skinning
+from ._solvers import DEFAULT_SOLVER, AbstractSolver
+from ._xla import to_device
+
+# Points pinning an attached part to its parent, spread over their overlap.
+_ATTACH_POINTS = 3
+# An overlap smaller than this fraction of the attached part's area cannot carry it.
+_LEAST_OVERLAP = 1e-3
+
+
+def _part_shapes(layers: list[Layer], alpha_threshold, tolerance) -> list[Shape]:
+    shapes = []
+    for layer in layers:
+        try:
+            shapes.append(Shape.from_image(layer.picture, alpha_threshold=alpha_threshold,
+                                           tolerance=tolerance))
+        except ValueError as error:
+            raise ValueError(f"layer {layer.name!r} cannot be made a part: {error} A part is "
+                             "one connected region of opaque pixels; split a layer holding "
+                             "several into one layer each.") from error
+    return shapes
+
+
+def _feeds(shapes: list[Shape], points, bones, owner, names) -> list[tuple[list, list]]:
+    """For each part, its handles for `Rig.build` and, row for row, how each of its
+    targets follows the character's: `(first, second, along, length, rigid)` as in
+    `Handles`."""
+    in_bone = np.zeros(len(points), bool)
+    for row, _ in bones:
+        in_bone[row:row + 2] = True
+    feeds = []
+    covering = [s.polygon.buffer(1e-6 * s.diagonal) for s in shapes]
+    for area in covering:
+        handles, rows = [], []
+        for row, bone in bones:
+            if area.covers(shapely.LineString([bone.start, bone.end])):
+                handles.append(Bone(bone.start, bone.end, stretch=bone.stretch))
+                rows += [(row, row, 0.0, 0.0, False), (row + 1, row + 1, 0.0, 0.0, False)]
+                continue
+            # A part holding one end of the bone is pinned there, where the bone puts it.
+            for along, end in ((0.0, bone.start), (1.0, bone.end)):
+                if area.covers(shapely.Point(end)):
+                    handles.append(tuple(end))
+                    rows.append((row, row + 1, along, bone.length, not bone.stretch))
+        for row in np.flatnonzero(~in_bone):
+            if area.covers(shapely.Point(points[row])):
+                handles.append(tuple(points[row]))
+                rows.append((row, row, 0.0, 0.0, False))
+        feeds.append((handles, rows))
+    for row in range(len(points)):
+        if not any(r[0] == row or r[1] == row for _, rows in feeds for r in rows):
+            raise ValueError(
+                f"handles[{owner[row]}] at {points[row].tolist()} lies in no part (the "
+                f"parts: {', '.join(map(repr, names))}); move it onto the part it should "
+                "pin.")
+    return feeds
+
+
+def _parents(shapes, feeds, attach, names) -> list[int]:
+    """Each part's parent (-1: none), attached parts after a part that carries them."""
+    count = len(shapes)
+    index = {name: i for i, name in enumerate(names)}
+
+    def part(key, what):
+        if isinstance(key, (int, np.integer)) and not isinstance(key, bool) \
+                and 0 <= key < count:
+            return int(key)
+        if isinstance(key, str) and key in index:
+            return index[key]
+        raise ValueError(f"attach names {what} {key!r}, which is no part; the parts are "
+                         f"{', '.join(map(repr, names))} (or indices 0 to {count - 1}).")
+
+    parents = [-1] * count
+    for child, parent in (attach or {}).items():
+        child, parent = part(child, "a part"), part(parent, "a parent")
+        if child == parent:
+            raise ValueError(f"attach asks part {names[child]!r} to follow itself.")
+        parents[child] = parent
+    for i in range(count):
+        if parents[i] < 0 and not feeds[i][1]:
+            overlap = [shapes[i].polygon.intersection(shapes[j].polygon).area
+                       if j != i else 0.0 for j in range(count)]
+            j = int(np.argmax(overlap))
+            if overlap[j] <= _LEAST_OVERLAP * shapes[i].area:
+                raise ValueError(
+                    f"part {names[i]!r} holds no handle and overlaps no other part, so "
+                    "nothing can move it; put a handle on it, or draw it overlapping the "
+                    "part it hangs from.")
+            parents[i] = j
+    # Every part must reach a part with handles of its own, without going round a loop.
+    for i in range(count):
+        seen, j = [i], i
+        while parents[j] >= 0 and not feeds[j][1]:
+            j = parents[j]
+            if j in seen:
+                raise ValueError(
+                    f"parts {', '.join(names[k] for k in seen)!r} are attached to each other "
+                    "in a loop and none holds a handle; put a handle on one of them.")
+            seen.append(j)
+    return parents
+
+
+def _solve_order(parents: list[int]) -> tuple[int, ...]:
+    order, done = [], set()
+
+    def visit(i):
+        if i in done:
+            return
+        if parents[i] >= 0:
+            visit(parents[i])
+        done.add(i)
+        order.append(i)
+
+    for i in range(len(parents)):
+        visit(i)
+    return tuple(order)
+
+
+def _attach_points(child: Shape, parent: Shape) -> np.ndarray:
+    """A few points of the child spread over its overlap with the parent, inside both."""
+    overlap = child.polygon.intersection(parent.polygon)
+    inner = overlap.buffer(-0.05 * np.sqrt(overlap.area))
+    region = inner if inner.area > 0.1 * overlap.area else overlap
+    lo, hi = np.asarray(region.bounds[:2]), np.asarray(region.bounds[2:])
+    step = np.sqrt(region.area) / 12.0
+    x, y = np.meshgrid(np.arange(lo[0], hi[0] + step, step), np.arange(lo[1], hi[1] + step,
+                                                                        step))
+    grid = np.stack([x.ravel(), y.ravel()], axis=1)
+    grid = grid[shapely.contains_xy(region, grid[:, 0], grid[:, 1])]
+    if len(grid) == 0:
+        point = region.representative_point()
+        return np.array([[point.x, point.y]])
+    # Farthest-point sampling, from the point farthest from the overlap's centre.
+    centre = np.asarray(region.centroid.coords[0])
+    chosen = [int(np.argmax(np.linalg.norm(grid - centre, axis=1)))]
+    distance = np.linalg.norm(grid - grid[chosen[0]], axis=1)
+    while len(chosen) < min(_ATTACH_POINTS, len(grid)):
+        chosen.append(int(np.argmax(distance)))
+        distance = np.minimum(distance, np.linalg.norm(grid - grid[chosen[-1]], axis=1))
+    return grid[chosen]
+
+
+def _feed_handles(rows: list, rest: np.ndarray, dtype) -> Handles:
+    first, second, along, length, rigid = (np.asarray(c).reshape(-1) for c in zip(*rows)) \
+        if rows else (np.zeros(0),) * 5
+    return Handles(
+        rest=to_device(rest, dtype), first=to_device(first, np.int32),
+        second=to_device(second, np.int32), along=to_device(along, dtype),
+        length=to_device(length, dtype), rigid=to_device(rigid.astype(bool), bool),
+        bones=to_device(np.zeros((0, 2)), np.int32))
+
+
+class Character(JittableModule):
+    """A character drawn in layers: one rig per part, all posed by one set of handles.
+
+    Build one with `Character.build`. `character.deform(targets)` gives every part's
+    deformed shape-mesh vertices, a tuple in the layers' order; `Renderer.build(character,
+    layers)` draws them. Like a rig, a character is a pytree: `jax.jit`, `jax.vmap` and
+    `jax.grad` take it, and new targets never recompile.
+
+    Attributes:
+        parts: a `Rig` per layer, bottom first.
+        feeds: per part, how its targets follow the character's (`Handles` rows over the
+            character's targets); an attached part's attachment targets come after them.
+        attachments: per part, the skinning weights of its attachment points in its
+            parent's control mesh (None for a part without a parent).
+        rest: `(t, 2)` the character's targets at rest.
+        bone_rows: `(b, 2)` each bone's target rows (start, end).
+        names: each part's name (static).
+        parents: each part's parent, -1 for none (static).
+        order: the order the parts are solved in, parents first (static).
+    """
+
+    parts: tuple[Rig, ...]
+    feeds: tuple[Handles, ...]
+    attachments: tuple[Skinning | None, ...]
+    rest: Float[Array, "t 2"]
+    bone_rows: Int[Array, "b 2"]
+    names: tuple[str, ...] = eqx.field(static=True)
+    parents: tuple[int, ...] = eqx.field(static=True)
+    order: tuple[int, ...] = eqx.field(static=True)
+
+    @classmethod
+    def build(
+        cls,
+        layers: Any,
+        handles: Any,
+        *,
+        attach: Any = None,
+        shape_spacing: Any = None,
+        alpha_threshold: Any = 0.5,
+        tolerance: Any = 0.5,
+        **options: Any,
+    ) -> Character:
+        """Rig every layer as a part, each pinned by the handles that lie in it.
+
+        Args:
+            layers: the parts, bottom first: a layered file (`.psd`, `.ora`) or a list of
+                same-size pictures (see `load_layers`). A part is a layer's opaque
+                region, in the layer's pixel coordinates (`Shape.from_image`'s: y up).
+            handles: the character's handles on the canvas, as for `Rig.build`: `(h, 2)`
+                points, or a list of `(x, y)` points and `mvcjax.Bone`s. A point pins
+                every part it lies in (a shoulder on the arm and the torso pins both); a
+                bone pins a part that holds all of it as a bone, and a part that holds
+                only one of its ends at that end. Every handle must lie in some part.
+            attach: `{part: parent}` (names or indices): parts that follow another where
+                they overlap. A part holding no handle follows, by default, the part it
+                overlaps most.
+            shape_spacing: edge length of every part's shape mesh (default: the whole
+                character's `Rig.build` default, or half a thin part's thickness).
+            alpha_threshold: alpha above which a pixel belongs to its part.
+            tolerance: how far, in pixels, a part's outline may simplify its pixels'.
+            options: further `Rig.build` options for every part (`control`, `skinning`,
+                `weights`, `dtype`, ...).
+        """
+        layers = load_layers(layers)
+        names = tuple(layer.name for layer in layers)
+        shapes = _part_shapes(layers, alpha_threshold, tolerance)
+        points, bones, owner = parse_handles(handles)
+        feeds = _feeds(shapes, points, bones, owner, names)
+        parents = _parents(shapes, feeds, attach, names)
+        if shape_spacing is None:
+            whole = np.sqrt(sum(s.area for s in shapes)) / 40.0
+            spacings = [min(whole, _thickness(s) / 2.0) for s in shapes]
+        else:
+            spacings = [shape_spacing] * len(shapes)
+        parts, attachments, feed_rows = [None] * len(shapes), [None] * len(shapes), []
+        order = _solve_order(parents)
+        for i in order:
+            part_handles, rows = feeds[i]
+            extra = (np.zeros((0, 2)) if parents[i] < 0
+                     else _attach_points(shapes[i], shapes[parents[i]]))
+            try:
+                parts[i] = Rig.build(shapes[i], [*part_handles, *map(tuple, extra)],
+                                     shape_spacing=spacings[i], **options)
+            except ValueError as error:
+                raise ValueError(f"part {names[i]!r}: {error}") from error
+            if parents[i] >= 0:
+                attachments[i] = parts[parents[i]].weights_at(extra)
+        dtype = parts[0].energy.rest.dtype
+        for i, (_, rows) in enumerate(feeds):
+            rest = np.asarray(parts[i].handle_positions, np.float64)[:len(rows)]
+            feed_rows.append(_feed_handles(rows, rest, dtype))
+        return cls(
+            parts=tuple(parts),
+            feeds=tuple(feed_rows),
+            attachments=tuple(attachments),
+            rest=to_device(points, dtype),
+            bone_rows=to_device(np.asarray([[r, r + 1] for r, _ in bones]).reshape(-1, 2),
+                                np.int32),
+            names=names,
+            parents=tuple(parents),
+            order=order,
+        )
+
+    @property
+    def handle_positions(self) -> Float[Array, "t 2"]:
+        """The targets at rest (a row per point handle, two per bone): targets equal to
+        these give back the rest pose."""
+        return self.rest
+
+    def part_targets(self, part: int, targets: Float[ArrayLike, "t 2"],
+                     parent_control: Any = None) -> Float[Array, "h 2"]:
+        """Part `part`'s targets (its rig's) for the character's, its attachment rows
+        carried by its parent's control vertices `parent_control` (a part with a
+        parent)."""
+        own = self.feeds[part].pinned_targets(targets)
+        attached = self.attachments[part]
+        if attached is None:
+            return own
+        parent = self.parts[self.parents[part]]
+        return jnp.concatenate([own, attached(parent.frame.to_local(parent_control),
+                                              parent.frame)])
+
+    def _check_targets(self, targets) -> Float[Array, "t 2"]:
+        return check_targets(targets, self.rest.shape[0], self.rest.dtype)
+
+    def solve(self, targets: Any, solver: Any = DEFAULT_SOLVER, *,
+              return_info: bool = False):
+        """Every part's control vertices for these targets, parents first.
+
+        Args:
+            targets: `(t, 2)` where each handle goes (a row per point, two per bone).
+            solver: the solver of every part (default: `Rig.solve`'s).
+            return_info: also return a `SolveInfo` per part.
+
+        Returns:
+            A tuple of `(c_i, 2)` control vertices, a part each in the layers' order (and
+            a tuple of `SolveInfo`s if asked for).
+        """
+        check_solver(solver)
+        control, info = _solve_parts(self, self._check_targets(targets), solver, "turned")
+        return (control, info) if return_info else control
+
+    def skin(self, control: tuple) -> tuple:
+        """Every part's shape-mesh vertices carried by its control vertices."""
+        return tuple(part.skin(c) for part, c in zip(self.parts, control))
+
+    def deform(self, targets: Any, solver: Any = DEFAULT_SOLVER, *,
+               return_info: bool = False):
+        """Solve, then skin: a tuple of every part's deformed shape-mesh vertices
+        `(n_i, 2)` in the layers' order (and a `SolveInfo` per part); the arguments are
+        those of `solve`."""
+        control, info = self.solve(targets, solver, return_info=True)
+        vertices = self.skin(control)
+        return (vertices, info) if return_info else vertices
+
+    def __repr__(self) -> str:
+        parts = ", ".join(f"{name!r}: {p.shape_mesh.vertices.shape[0]} vertices"
+                          + (f", follows {self.names[self.parents[i]]!r}"
+                             if self.parents[i] >= 0 else "")
+                          for i, (name, p) in enumerate(zip(self.names, self.parts)))
+        return f"Character({len(self.parts)} parts: {parts}; {self.rest.shape[0]} targets)"
+
+
+@_compiled_when_eager
+def _solve_parts(character: Character, targets, solver: AbstractSolver, init):
+    from ._rig import solve_in_frame
+
+    control, info = [None] * len(character.parts), [None] * len(character.parts)
+    for i in character.order:
+        part = character.parts[i]
+        parent = character.parents[i]
+        own = character.part_targets(i, targets, None if parent < 0 else control[parent])
+        local, info[i] = solve_in_frame(part, own, solver, init)
+        control[i] = part.frame.to_world(local)
+    return tuple(control), tuple(info)
+
+
+def _check_order(order, count: int, names) -> Any:
+    """A draw order: a permutation of the parts, bottom first (checked where concrete)."""
+    if isinstance(order, jax.core.Tracer):
+        return order
+    host = np.asarray(order)
+    if host.shape[-1:] != (count,) or host.dtype.kind not in "iu" or not np.all(
+            np.sort(host, axis=-1) == np.arange(count)):
+        raise ValueError(
+            f"order must list each of the {count} parts once, bottom first (a permutation "
+            f"of 0..{count - 1}; the parts: {', '.join(map(repr, names))}), got "
+            f"{host.tolist()}.")
+    return jnp.asarray(host, jnp.int32)
+
+
+class CharacterRenderer(JittableModule):
+    """Draws a layered character: every part with its own layer as texture, the parts
+    laid over each other in a draw order that may change from frame to frame.
+
+    Build one with `Renderer.build(character, layers)` (or `CharacterRenderer.build`);
+    call it with the parts' vertices (`character.deform(targets)`). It jits, vmaps over
+    frames and differentiates like `Renderer`.
+
+    Attributes:
+        parts: a `Renderer` per part, all with the same window and size.
+        order: `(p,)` the default draw order, bottom first (the layers').
+        background: `(4,)` straight RGBA drawn where no part is.
+        names: the parts' names (static).
+    """
+
+    parts: tuple[Renderer, ...]
+    order: Int[Array, " p"]
+    background: Float[Array, " 4"]
+    names: tuple[str, ...] = eqx.field(static=True)
+
+    @classmethod
+    def build(cls, character: Character, layers: Any, *, window: Any = None,
+              size: Any = None, background: Any = (0.0, 0.0, 0.0, 0.0),
+              **options: Any) -> CharacterRenderer:
+        """A renderer for a character.
+
+        Args:
+            character: the `Character`.
+            layers: the layers it was built from (a layered file or a list of pictures):
+                each part's texture.
+            window: the rectangle `(xmin, ymin, xmax, ymax)` to draw; default the
+                canvas's (`fit_window` makes one that holds a whole animation).
+            size: `(rows, cols)` of the output; default the canvas's with its window,
+                else 512 pixels along the window's longer side.
+            background: straight RGBA where no part is drawn; transparent by default.
+            options: further `Renderer.build` options for every part (`antialias`,
+                `alpha`, `budget`, `dtype`).
+        """
+        if not isinstance(character, Character):
+            raise TypeError(f"character must be an mvcjax.Character, got "
+                            f"{type(character).__name__}.")
+        layers = load_layers(layers)
+        if len(layers) != len(character.parts):
+            raise ValueError(f"layers holds {len(layers)} layers, the character "
+                             f"{len(character.parts)} parts; give the layers it was built "
+                             "from.")
+        rows, cols = layers[0].picture.shape[:2]
+        if window is None:
+            window = (-0.5, -0.5, cols - 0.5, rows - 0.5)
+            size = (rows, cols) if size is None else size
+        parts = tuple(Renderer.build(rig, layer.picture, window=window, size=size,
+                                     **options)
+                      for rig, layer in zip(character.parts, layers))
+        background = np.asarray(background, np.float64)
+        if background.shape == (3,):
+            background = np.append(background, 1.0)
+        if background.shape != (4,) or not np.all((background >= 0) & (background <= 1)):
+            raise ValueError(f"background must be (r, g, b) or (r, g, b, a) in [0, 1], got "
+                             f"{background.tolist()}.")
+        dtype = parts[0].texture.dtype
+        return cls(parts=parts, order=to_device(np.arange(len(parts)), np.int32),
+                   background=to_device(background, dtype), names=character.names)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.parts[0].shape
+
+    @property
+    def window(self) -> Float[Array, " 4"]:
+        return self.parts[0].window
+
+    def __call__(self, vertices: Any, order: Any = None,
+                 window: Any = None) -> Float[Array, "rows cols 4"]:
+        """The picture of the character posed at `vertices`.
+
+        Args:
+            vertices: a tuple of every part's `(n_i, 2)` vertices (`character.deform`).
+            order: `(p,)` the draw order of this picture, part indices bottom first
+                (numbers: no recompilation); default the layers'.
+            window: another rectangle `(xmin, ymin, xmax, ymax)` to draw.
+
+        Returns:
+            `(rows, cols, 4)` straight RGBA in [0, 1].
+        """
+        if not isinstance(vertices, (tuple, list)) or len(vertices) != len(self.parts):
+            raise ValueError(f"vertices must be a tuple of {len(self.parts)} arrays, a "
+                             "part's vertices each (character.deform(targets)), got "
+                             f"{type(vertices).__name__}.")
+        order = self.order if order is None else _check_order(order, len(self.parts),
+                                                                self.names)
+        window = self.window if window is None else jnp.asarray(window, self.window.dtype)
+        layers = jnp.stack([_premultiplied(renderer, v, window)
+                            for renderer, v in zip(self.parts, vertices)])
+
+        def over(k, colour):
+            top = layers[order[k]]
+            return top + (1.0 - top[..., 3:]) * colour
+
+        under = jnp.broadcast_to(_premultiply(self.background), layers.shape[1:])
+        return straight_rgba(jax.lax.fori_loop(0, len(self.parts), over, under))
+
+    def frames(self, vertices: Any, order: Any = None, *, chunk: Any = 8) -> np.ndarray:
+        """Many pictures, ready to write: `(frames, rows, cols, 4)` `uint8` straight RGBA.
+
+        Args:
+            vertices: a tuple of every part's `(frames, n_i, 2)` vertices
+                (`deform_frames(character, targets)`).
+            order: `(p,)` one draw order, or `(frames, p)` one per frame.
+            chunk: frames drawn by one compiled call.
+        """
+        from .export import to_uint8
+
+        vertices = tuple(np.asarray(v) for v in vertices)
+        frames = vertices[0].shape[0]
+        order = np.asarray(self.order if order is None else order)
+        order = _check_order(np.broadcast_to(order, (frames, len(self.parts))),
+                             len(self.parts), self.names)
+        chunk = min(whole_number(chunk, "chunk", what=" of frames"), frames)
+        out = np.empty((frames, *self.shape, 4), np.uint8)
+        for begin in range(0, frames, chunk):
+            take = np.minimum(np.arange(begin, begin + chunk), frames - 1)
+            batch = tuple(jnp.asarray(v[take], self.window.dtype) for v in vertices)
+            pictures = _draw_character_batch(self, batch, order[take])
+            done = min(chunk, frames - begin)
+            out[begin:begin + done] = to_uint8(np.asarray(pictures[:done]))
+        return out
+
+
+def _premultiply(rgba):
+    return jnp.concatenate([rgba[:3] * rgba[3], rgba[3:]])
+
+
+def _premultiplied(renderer: Renderer, vertices, window):
+    return draw_premultiplied(renderer, jnp.asarray(vertices, renderer.texture.dtype),
+                              window).reshape(*renderer.shape, 4)
+
+
+@eqx.filter_jit
+def _draw_character_batch(renderer: CharacterRenderer, vertices, order):
+    return jax.vmap(lambda v, o: renderer(v, o))(vertices, order)
+
