@@ -118,7 +118,7 @@ def deform_frames(
     chunk: Any = 1024,
     devices: Any = None,
     out: Any = None,
-) -> Float[Array, "frames n 2"]:
+) -> Float[Array, "frames n 2"] | tuple[Array, ...]:
     """Deformed shape-mesh vertices for every frame of `targets`.
 
     One compiled program (cached by shapes and solver, like any `jit`) solves the frames

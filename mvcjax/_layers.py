@@ -63,9 +63,9 @@ def _read_ora(path: str) -> list[Layer]:
 
     project = Project.load(path)
     cols, rows = project.dimensions
-    # pyora lists layers top first.
+    # pyora lists the layers bottom first (the file's stack lists them top first).
     return [_canvas_layer(layer.name, layer.get_image_data(), layer.offsets, (rows, cols))
-            for layer in reversed(list(project.iter_layers())) if layer.visible]
+            for layer in project.iter_layers if layer.visible]
 
 
 def _read_layered_file(path) -> list[Layer]:
@@ -80,7 +80,7 @@ def _read_layered_file(path) -> list[Layer]:
     try:
         layers = (_read_psd if kind == "psd" else _read_ora)(os.fspath(path))
     except Exception as error:  # the readers raise many kinds for a damaged file
-        raise ValueError(f"{name} could not be read as a {kind.upper()} file ({error}); "
+        raise ValueError(f"{name} could not be read as {kind.upper()} ({error}); "
                          "it may be damaged or of another format: save it again, or give a "
                          "list of pictures instead.") from error
     if not layers:

@@ -1,0 +1,264 @@
+"""Layered characters: a rig per layer posed by one set of handles, attachments, draw
+order per frame, layered files, and the errors."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from PIL import Image
+
+import mvcjax
+from mvcjax import datasets
+from mvcjax._handles import parse_handles
+
+BODY, LEFT_ARM, RIGHT_ARM, HAND = range(4)
+
+
+@pytest.fixture(scope="module")
+def layers():
+    return datasets.layered_figure()
+
+
+@pytest.fixture(scope="module")
+def character(layers):
+    return mvcjax.Character.build(layers, datasets.layered_figure_handles())
+
+
+@pytest.fixture(scope="module")
+def renderer(character, layers):
+    return mvcjax.Renderer.build(character, layers)
+
+
+@pytest.fixture(scope="module")
+def wave():
+    return datasets.layered_figure_wave(30)
+
+
+@pytest.fixture(scope="module")
+def posed(character, wave):
+    return mvcjax.deform_frames(character, wave)
+
+
+def test_handles_pin_the_parts_they_lie_in_and_the_hand_follows_its_arm(character):
+    # The chest and the ankles pin the body, each arm's bone its arm as a bone and the
+    # body at the shoulder; the right hand holds none and follows the right arm.
+    assert character.names == ("body", "left arm", "right arm", "right hand")
+    assert character.parents == (-1, -1, -1, RIGHT_ARM)
+    assert character.order.index(RIGHT_ARM) < character.order.index(HAND)
+    counts = [int(feed.rest.shape[0]) for feed in character.feeds]
+    assert counts == [5, 2, 2, 0]  # chest, two shoulders, two ankles; a bone each; none
+    assert character.parts[HAND].handles.count >= 2  # pinned where it overlaps the arm
+    assert character.attachments[HAND] is not None
+
+
+def test_rest_targets_give_the_rest_parts(character):
+    parts = character.deform(character.handle_positions)
+    for part, rig in zip(parts, character.parts):
+        rest = rig.shape_mesh.vertices
+        size = float(jnp.max(rest) - jnp.min(rest))
+        assert float(jnp.max(jnp.abs(part - rest))) < 1e-4 * size
+
+
+def test_a_swung_arm_leaves_the_body_where_it_was_and_carries_the_hand(character, posed,
+                                                                         wave):
+    # The body is pinned by the chest, the ankles and the shoulders, none of which move.
+    body = posed[BODY] - character.parts[BODY].shape_mesh.vertices
+    assert float(jnp.max(jnp.abs(body))) < 1e-3
+    # The hand keeps its place at the arm's tip: its centre stays as far from the wrist
+    # target as at rest (the arm turned about the shoulder, rigidly).
+    hand = posed[HAND].mean(axis=1)
+    reach = jnp.linalg.norm(hand - wave[:, 4], axis=1)
+    assert float(jnp.max(jnp.abs(reach - reach[0]))) < 0.05 * float(reach[0])
+    turned = jnp.linalg.norm(hand[15] - hand[0])
+    assert float(turned) > 50.0  # it did move, far
+
+
+def test_deform_frames_jit_and_vmap_agree_with_single_poses(character, posed, wave):
+    single = character.deform(wave[9])
+    batched = jax.jit(jax.vmap(character.deform))(jnp.asarray(wave[8:10]))
+    for whole, one, mapped in zip(posed, single, batched):
+        np.testing.assert_allclose(whole[9], one, atol=1e-3)
+        np.testing.assert_allclose(mapped[1], one, atol=1e-3)
+
+
+def test_new_targets_and_new_orders_do_not_recompile(character, renderer, wave):
+    deform = jax.jit(mvcjax.Character.deform)
+    draw = jax.jit(lambda r, v, o: r(v, o))
+    for k in (3, 6):
+        parts = deform(character, jnp.asarray(wave[k]))
+        draw(renderer, parts, jnp.asarray([k % 4, *[i for i in range(4) if i != k % 4]]))
+    assert deform._cache_size() == 1
+    assert draw._cache_size() == 1
+
+
+def _alpha(part_renderer, vertices):
+    return np.asarray(part_renderer(vertices))[..., 3]
+
+
+def test_a_swing_across_the_torso_changes_only_the_pixels_the_arm_passes(renderer, posed):
+    # Pixels that neither the right arm nor its hand covers, now or at rest, keep their
+    # colour in every frame; where the arm's edge lies over the torso, the picture is its
+    # antialiased coverage blended over the torso (no torso patch above it, no steps).
+    pictures = renderer.frames(posed).astype(np.float64) / 255
+    parts = [renderer.parts[i] for i in range(4)]
+    moving = [RIGHT_ARM, HAND]
+    rest_cover = sum(_alpha(parts[i], posed[i][0]) for i in moving)
+    blended = 0
+    for k in range(len(pictures)):
+        cover = rest_cover + sum(_alpha(parts[i], posed[i][k]) for i in moving)
+        still = cover == 0
+        assert np.abs(pictures[k] - pictures[0])[still].max() <= 1 / 255
+        arm = np.asarray(parts[RIGHT_ARM](posed[RIGHT_ARM][k]))
+        body = np.asarray(parts[BODY](posed[BODY][k]))
+        hand = _alpha(parts[HAND], posed[HAND][k])
+        left = _alpha(parts[LEFT_ARM], posed[LEFT_ARM][k])
+        edge = (arm[..., 3] > 0.05) & (arm[..., 3] < 0.95) & (body[..., 3] == 1) & \
+            (hand == 0) & (left == 0)
+        a = arm[..., 3:]
+        expected = a * arm[..., :3] + (1 - a) * body[..., :3]
+        assert np.abs(pictures[k][..., :3] - expected)[edge].max() <= 1.5 / 255
+        blended += int(edge.sum())
+    assert blended > 100  # the arm's edge did cross the torso, and was blended there
+
+
+def test_the_draw_order_can_change_per_frame(character, renderer, posed, layers):
+    # At rest the left arm lies over the torso's side: drawn over it by default, under
+    # it with the body last.
+    rest = [p[0] for p in posed]
+    overlap = (layers[BODY].picture[..., 3] > 0.5) & (layers[LEFT_ARM].picture[..., 3] > 0.5)
+    sleeve = layers[LEFT_ARM].picture[overlap][:, :3].mean(axis=0)
+    shirt = layers[BODY].picture[overlap][:, :3].mean(axis=0)
+    default = np.asarray(renderer(rest))[overlap][:, :3].mean(axis=0)
+    behind = np.asarray(renderer(rest, order=[1, 2, 3, 0]))[overlap][:, :3].mean(axis=0)
+    np.testing.assert_allclose(default, sleeve, atol=0.02)
+    np.testing.assert_allclose(behind, shirt, atol=0.02)
+    orders = np.array([[0, 1, 2, 3], [1, 2, 3, 0]])
+    pictures = renderer.frames([p[:2] for p in posed], order=orders)
+    assert not np.array_equal(pictures[0], pictures[1])
+
+
+def test_gradients_flow_from_the_picture_to_the_targets(character, renderer, wave):
+    targets = jnp.asarray(wave[10])
+
+    def hand_x(t):
+        return jnp.mean(character.deform(t)[HAND][:, 0])
+
+    grad = jax.jit(jax.grad(hand_x))(targets)
+    # Only the right wrist's target and the shoulder (its bone's pivot) move the hand.
+    assert float(jnp.abs(grad[4]).sum()) > 0.1
+    assert float(jnp.abs(grad[jnp.array([0, 5, 6])]).max()) < 1e-3
+    picture = jax.jit(jax.grad(lambda t: jnp.sum(renderer(character.deform(t))[..., 0])))(
+        targets)
+    assert np.all(np.isfinite(picture)) and float(jnp.abs(picture[4]).sum()) > 0
+
+
+@pytest.mark.float64
+def test_gradients_match_finite_differences(layers):
+    character = mvcjax.Character.build(layers, datasets.layered_figure_handles(),
+                                       shape_spacing=6.0, dtype=jnp.float64)
+    targets = jnp.asarray(datasets.layered_figure_wave(5)[1])
+    weights = jax.random.normal(jax.random.key(0), character.parts[HAND].shape_mesh.vertices.shape)
+
+    def loss(t):
+        return jnp.sum(character.deform(t)[HAND] * weights)
+
+    grad = jax.jit(jax.grad(loss))(targets)
+    loss = jax.jit(loss)
+    h = 1e-4
+    for row, axis in [(4, 0), (4, 1), (3, 1)]:
+        step = jnp.zeros_like(targets).at[row, axis].set(h)
+        fd = (loss(targets + step) - loss(targets - step)) / (2 * h)
+        assert abs(float(fd) - float(grad[row, axis])) < 1e-5 * max(1.0, abs(float(fd)))
+
+
+def _write_psd(path, layers):
+    from psd_tools import PSDImage
+    from psd_tools.api.layers import PixelLayer
+
+    rows, cols = layers[0].picture.shape[:2]
+    psd = PSDImage.new("RGBA", (cols, rows))
+    for layer in layers:
+        image = Image.fromarray(mvcjax.export.to_uint8(layer.picture), "RGBA")
+        # Cropped to its opaque part and placed by its offset, as Photoshop stores layers.
+        left, top, right, bottom = image.getbbox()
+        psd.append(PixelLayer.frompil(image.crop((left, top, right, bottom)), psd,
+                                      layer.name, top=top, left=left))
+    psd.save(path)
+
+
+def _write_ora(path, layers):
+    import pyora
+
+    rows, cols = layers[0].picture.shape[:2]
+    project = pyora.Project.new(cols, rows)
+    for layer in layers:
+        project.add_layer(Image.fromarray(mvcjax.export.to_uint8(layer.picture), "RGBA"),
+                          layer.name)
+    project.save(path)
+
+
+@pytest.mark.parametrize("write", [_write_psd, _write_ora], ids=["psd", "ora"])
+def test_layered_files_read_back_as_their_layers(tmp_path, layers, write):
+    path = tmp_path / f"figure.{write.__name__[-3:]}"
+    write(path, layers)
+    back = mvcjax.load_layers(path)
+    assert [layer.name for layer in back] == [layer.name for layer in layers]
+    for read, drawn in zip(back, layers):
+        np.testing.assert_allclose(read.picture, drawn.picture, atol=0.5 / 255)
+
+
+def test_a_character_builds_from_a_psd_file(tmp_path, layers, character):
+    path = tmp_path / "figure.psd"
+    _write_psd(path, layers)
+    from_file = mvcjax.Character.build(path, datasets.layered_figure_handles())
+    assert from_file.names == character.names
+    assert [p.shape_mesh.vertices.shape for p in from_file.parts] == \
+        [p.shape_mesh.vertices.shape for p in character.parts]
+
+
+def _disc(centre, radius, size=(64, 64)):
+    y, x = np.mgrid[:size[0], :size[1]]
+    picture = np.zeros((*size, 4), np.float32)
+    picture[(x - centre[0]) ** 2 + (y - centre[1]) ** 2 < radius**2] = (1, 0, 0, 1)
+    return picture
+
+
+def test_bad_layers_and_handles_are_refused_with_the_fix(tmp_path):
+    a, b = _disc((20, 32), 12), _disc((44, 32), 12)
+    with pytest.raises(ValueError, match="share one canvas"):
+        mvcjax.load_layers([a, _disc((20, 20), 10, (32, 32))])
+    with pytest.raises(ValueError, match="'layer 1' is empty"):
+        mvcjax.load_layers([a, np.zeros_like(a)])
+    broken = tmp_path / "broken.psd"
+    broken.write_bytes(b"not a photoshop file")
+    with pytest.raises(ValueError, match="could not be read as PSD"):
+        mvcjax.load_layers(broken)
+    with pytest.raises(FileNotFoundError, match="No layered file"):
+        mvcjax.load_layers(tmp_path / "missing.ora")
+    with pytest.raises(ValueError, match="not a layered file"):
+        mvcjax.load_layers(tmp_path / "figure.png")
+    # Pixel (row, col) is at (col, rows - 1 - row): the discs' centres.
+    left, right = (20.0, 31.0), (44.0, 31.0)
+    with pytest.raises(ValueError, match=r"handles\[1\] .* lies in no part"):
+        mvcjax.Character.build([a, b], [left, (32.0, 60.0)])
+    with pytest.raises(ValueError, match="'layer 1' holds no handle and overlaps no other"):
+        mvcjax.Character.build([a, b], [left, (14.0, 31.0)])
+    with pytest.raises(ValueError, match="attach names a part 'nose'"):
+        mvcjax.Character.build([a, b], [left, right], attach={"nose": 0})
+
+
+def test_order_and_vertices_must_fit_the_parts(character, renderer, wave):
+    parts = character.deform(wave[0])
+    with pytest.raises(ValueError, match="order must list each of the 4 parts once"):
+        renderer(parts, order=[0, 0, 1, 2])
+    with pytest.raises(ValueError, match="a tuple of 4 arrays"):
+        renderer(parts[0])
+    with pytest.raises(ValueError, match=r"targets must have shape \(7, 2\)"):
+        character.deform(wave[0][:5])
+
+
+def test_the_character_and_its_parts_are_described(character):
+    text = repr(character)
+    assert "4 parts" in text and "'right hand'" in text and "follows 'right arm'" in text
+    rest, _, _ = parse_handles(datasets.layered_figure_handles())
+    np.testing.assert_allclose(character.handle_positions, rest, atol=1e-4)
