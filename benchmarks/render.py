@@ -20,6 +20,13 @@ Three parts, each in the same run, float32 on whatever JAX device is the default
   pixel centre lies inside the deformed silhouette and at least 2 pixels from its
   outline, and how the edges differ. The error of mvcjax's texture positions, in
   texels, is measured by drawing a linear ramp instead of the picture.
+- layers: a layered character of 3 to 8 parts (a disc of a body with limbs on layers
+  of their own, each lying over the body at its root and pinned by a bone from inside
+  the body to its tip; about 6k shape vertices in all), drawn at 512 x 512 with the
+  limbs turned: the build's time, the compile and median times of one jitted frame's
+  pose (`Character.deform`) and picture (`CharacterRenderer`), and the same for the
+  same figure as one silhouette (its layers flattened, one rig and one renderer), with
+  the ratios of the two.
 - export: an animation of the horse dragged there and back, 256 x 256, written by
   `mvcjax.export.write_animation` as GIF, animated PNG, WebP and MP4: seconds and bytes.
 
@@ -30,7 +37,8 @@ times the throughput of a loop) are printed and recorded with whether they were 
 never asserted.
 
     python benchmarks/render.py                       # 6k and 20k; 256, 512, 1024; 200 frames
-    python benchmarks/render.py --quick --json FILE   # 6k; 256, 512; peers at 256; 50 frames
+    python benchmarks/render.py --quick --json FILE   # 6k; 256, 512; peers at 256; 50 frames;
+                                                      # 3 and 8 parts
 """
 
 from __future__ import annotations
@@ -54,6 +62,8 @@ QUICK_PEER_SIZES = [256]
 # transform per triangle, and its warp loops over the triangles in Python.
 QUICK_PEER_VERTICES = 1500
 EXPORT_FRAMES, QUICK_EXPORT_FRAMES = 200, 50
+LAYER_PARTS, QUICK_LAYER_PARTS = [3, 5, 8], [3, 8]
+LAYER_CANVAS, LAYER_VERTICES = 256, 6000  # pixels square; shape vertices in all
 EXPORT_SIZE = 256
 FORMATS = [".gif", ".png", ".webp", ".mp4"]
 
@@ -514,6 +524,113 @@ def run_export(shape, vertices: int, count: int, repeats: int, rigs: dict) -> li
 # ---- main ------------------------------------------------------------------------------
 
 
+# ---- layered characters ----------------------------------------------------------------
+
+
+def _limbed_layers(parts: int):
+    """A disc of a body and `parts - 1` limbs around it, each limb a layer of its own
+    whose root lies over the body, with a bone from inside the body to its tip; and the
+    limbs' tips turned 30 degrees about their roots, alternately either way."""
+    import numpy as np
+    from PIL import Image, ImageDraw
+
+    from mvcjax import Bone, load_image
+
+    size = LAYER_CANVAS
+    centre, radius, length, width = size / 2, size * 0.18, size * 0.3, size * 0.07
+
+    def layer(draw_on):
+        image = Image.new("RGBA", (size, size), (0, 0, 0, 0))
+        draw_on(ImageDraw.Draw(image))
+        return load_image(image)
+
+    def body(draw):
+        draw.ellipse([centre - radius] * 2 + [centre + radius] * 2, fill=(52, 101, 164, 255))
+
+    def flip(p):  # shape coordinates (y up) -> Pillow's (x, y down)
+        return (p[0], size - 1 - p[1])
+
+    layers, handles, pose = [layer(body)], [], []
+    angles = np.linspace(0.0, 2 * np.pi, parts - 1, endpoint=False) + 0.3
+    for k, angle in enumerate(angles):
+        d = np.array([np.cos(angle), np.sin(angle)])
+        root = centre + 0.6 * radius * d
+        tip = centre + (radius + length) * d
+
+        def limb(draw, root=root, tip=tip, k=k):
+            colour = (200 - 15 * k, 120 + 10 * k, 80, 255)
+            draw.line([flip(root), flip(tip)], fill=colour, width=round(2 * width))
+            for p in (root, tip):
+                x, y = flip(p)
+                draw.ellipse([x - width, y - width, x + width, y + width], fill=colour)
+
+        layers.append(layer(limb))
+        handles.append(Bone(root, tip - 0.5 * width * d))
+        turn = np.radians(30.0 if k % 2 else -30.0)
+        rot = np.array([[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]])
+        end = tip - 0.5 * width * d
+        pose += [root, root + rot @ (end - root)]
+    return layers, handles, np.asarray(pose)
+
+
+def run_layers(part_counts, repeats: int) -> list[dict]:
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    import mvcjax
+
+    rows = []
+    for parts in part_counts:
+        layers, handles, pose = _limbed_layers(parts)
+        area = sum(float((layer[..., 3] > 0.5).sum()) for layer in layers)
+        spacing = float(np.sqrt(area / (0.513 * LAYER_VERTICES)))  # as spacing_for
+        t0 = time.perf_counter()
+        character = mvcjax.Character.build(layers, handles, shape_spacing=spacing,
+                                           dtype=jnp.float32)
+        build_s = time.perf_counter() - t0
+        size = (TARGET_SIZE, TARGET_SIZE)
+        renderer = mvcjax.Renderer.build(character, layers, size=size)
+        # The same figure as one silhouette: its layers flattened, bottom first.
+        flat = layers[0].copy()
+        for layer in layers[1:]:
+            a = layer[..., 3:]
+            flat[..., :3] = layer[..., :3] * a + flat[..., :3] * (1 - a)
+            flat[..., 3:] = a + flat[..., 3:] * (1 - a)
+        rig = mvcjax.Rig.build(mvcjax.Shape.from_image(flat), handles, shape_spacing=spacing,
+                               dtype=jnp.float32)
+        single = mvcjax.Renderer.build(rig, flat, size=size)
+        targets = jnp.asarray(pose, jnp.float32)
+        deform = jax.jit(mvcjax.Character.deform)
+        draw = jax.jit(lambda r, v: r(v))
+        one_deform = jax.jit(mvcjax.Rig.deform)
+        vertices = deform(character, targets)
+        silhouette = one_deform(rig, targets)
+        row = {
+            "kind": "layers",
+            "parts": parts,
+            "shape_vertices": int(sum(p.shape_mesh.vertices.shape[0] for p in character.parts)),
+            "control_vertices": int(sum(p.control_mesh.vertices.shape[0]
+                                        for p in character.parts)),
+            "silhouette_shape_vertices": int(rig.shape_mesh.vertices.shape[0]),
+            "size": f"{size[0]}x{size[1]}",
+            "build_s": build_s,
+            "deform_compile_ms": compile_ms(deform, character, targets),
+            "deform_ms": median_ms(deform, [(character, targets)], repeats),
+            "render_compile_ms": compile_ms(draw, renderer, vertices),
+            "render_ms": median_ms(draw, [(renderer, vertices)], repeats),
+            "silhouette_deform_ms": median_ms(one_deform, [(rig, targets)], repeats),
+            "silhouette_render_ms": median_ms(draw, [(single, silhouette)], repeats),
+        }
+        row["deform_over_silhouette"] = row["deform_ms"] / row["silhouette_deform_ms"]
+        row["render_over_silhouette"] = row["render_ms"] / row["silhouette_render_ms"]
+        rows.append(row)
+        print(f"{parts:>5} {row['shape_vertices']:>6} {build_s:>7.2f}s "
+              f"{row['deform_ms']:>7.2f}ms {row['silhouette_deform_ms']:>7.2f}ms "
+              f"{row['render_ms']:>7.2f}ms {row['silhouette_render_ms']:>7.2f}ms", flush=True)
+    return rows
+
+
 def _targets(rows) -> dict:
     out = {"target_frame_ms_512_6k": TARGET_FRAME_MS,
            "target_batch_over_loop": TARGET_BATCH_OVER_LOOP}
@@ -558,8 +675,8 @@ def main(argv=None) -> int:
     parser.add_argument("--sizes", type=int, nargs="*", help="output sizes (square, pixels)")
     parser.add_argument("--peer-sizes", type=int, nargs="*",
                         help="output sizes of the peer comparison")
-    parser.add_argument("--parts", nargs="*", choices=["render", "peer", "export"],
-                        default=["render", "peer", "export"], help="what to run")
+    parser.add_argument("--parts", nargs="*", choices=["render", "peer", "layers", "export"],
+                        default=["render", "peer", "layers", "export"], help="what to run")
     args = parser.parse_args(argv)
     vertices = args.vertices or (QUICK_VERTICES if args.quick else VERTICES)
     sizes = args.sizes or (QUICK_SIZES if args.quick else SIZES)
@@ -589,6 +706,14 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         rows += run_peers(shape, peer_vertices, peer_sizes, repeats, note, rigs)
         seconds["peer_part_s"] = time.perf_counter() - t0
+    if "layers" in args.parts:
+        print(f"\nlayered characters, {TARGET_SIZE}x{TARGET_SIZE}, about {LAYER_VERTICES} shape "
+              "vertices in all; one jitted frame, and the same figure as one silhouette\n"
+              f"{'parts':>5} {'V_S':>6} {'build':>8} {'deform':>9} {'(one)':>9} "
+              f"{'render':>9} {'(one)':>9}", flush=True)
+        t0 = time.perf_counter()
+        rows += run_layers(QUICK_LAYER_PARTS if args.quick else LAYER_PARTS, repeats)
+        seconds["layers_part_s"] = time.perf_counter() - t0
     if "export" in args.parts:
         count = QUICK_EXPORT_FRAMES if args.quick else EXPORT_FRAMES
         print(f"\nexport: {count} frames, {EXPORT_SIZE}x{EXPORT_SIZE}, checkerboard fill, "

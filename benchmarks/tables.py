@@ -313,6 +313,24 @@ def render_peers_table(data: dict, source: str) -> str:
     return "\n".join(lines)
 
 
+def render_layers_table(data: dict, source: str) -> str:
+    """`benchmarks/render.py`, the layers part: layered characters against one silhouette."""
+    layered = [r for r in data["rows"] if r.get("kind") == "layers"]
+    rows = [[str(r["parts"]), f"{r['shape_vertices']} / {r['silhouette_shape_vertices']}",
+             r["size"].replace("x", " x "), _num(r["build_s"], "s"),
+             _seconds(r["deform_compile_ms"]), _ms(r["deform_ms"]),
+             _ms(r["silhouette_deform_ms"]), _times(r["deform_over_silhouette"]),
+             _seconds(r["render_compile_ms"]), f"**{_ms(r['render_ms'])}**",
+             _ms(r["silhouette_render_ms"]), _times(r["render_over_silhouette"])]
+            for r in layered]
+    head = ["parts", "V_S (layers / one silhouette)", "size", "build", "pose compile",
+            "pose", "pose, one silhouette", "ratio", "picture compile", "picture",
+            "picture, one silhouette", "ratio"]
+    meta = data.get("meta", {})
+    return "\n".join([_measured_on(data, source, f"medians of {meta.get('repeats')} calls"),
+                      "", *_table(head, rows)])
+
+
 def render_export_table(data: dict, source: str) -> str:
     """`benchmarks/render.py`, the export part: an animation written in every format."""
     names = {".gif": "GIF", ".png": "animated PNG", ".webp": "WebP", ".mp4": "MP4"}
@@ -405,6 +423,7 @@ TABLES = [
     Table(BENCHMARKS, "interact", _results("interact"), interact_table),
     Table(BENCHMARKS, "render", _results("render"), render_table),
     Table(BENCHMARKS, "render-peers", _results("render"), render_peers_table),
+    Table(BENCHMARKS, "render-layers", _results("render"), render_layers_table),
     Table(BENCHMARKS, "render-export", _results("render"), render_export_table),
     Table("docs/paper.md", "table1", _results("table1"), table1_table),
     Table("docs/folds.md", "folds", _results("folds"), lambda data, _: folds.format_tables(data)),

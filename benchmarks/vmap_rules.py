@@ -97,8 +97,7 @@ def _cases(rig, frames: int, picture_size: int) -> dict:
         "skin_into": (donated("into", lambda v, o: into(skinning, v, frame, o)),
                       donated("plain_into", plain_into), (control,)),
         "render": (jax.jit(jax.vmap(renderer)),
-                   jax.jit(jax.vmap(lambda v: _render.straight_rgba(
-                       _render._draw(renderer, v, renderer.window)))),
+                   jax.jit(jax.vmap(lambda v: _render._draw(renderer, v, renderer.window))),
                    (poses,)),
         # Reversed: the kept implementation is the single frame's own layout.
         "frame_layout": (

@@ -154,8 +154,8 @@ def deform_frames(
     such a frame comes back non-finite while the others are unaffected.
     """
     character = isinstance(rig, Character)
-    h = rig.rest.shape[0] if character else rig.handles.count
-    dtype = rig.rest.dtype if character else rig.energy.rest.dtype
+    h = rig.handles.count
+    dtype = rig.handles.rest.dtype
     check_solver(solver)
     if not isinstance(targets, jax.core.Tracer):
         host = as_array(targets, "targets", f"an array of shape (frames, {h}, 2)")

@@ -26,10 +26,10 @@ import shapely
 from jaxtyping import Array, ArrayLike, Float, Int
 
 from ._checks import check_solver, check_targets, whole_number
-from ._handles import Bone, Handles, parse_handles
+from ._handles import Bone, Handles, make_handles, parse_handles, pin
 from ._layers import Layer, load_layers
 from ._module import JittableModule
-from ._render import Renderer, draw_premultiplied, straight_rgba
+from ._render import Renderer
 from ._rig import Rig, _compiled_when_eager, _thickness
 from ._shape import Shape
 from ._skinning import Skinning
@@ -174,6 +174,10 @@ def _attach_points(child: Shape, parent: Shape) -> np.ndarray:
     return grid[chosen]
 
 
+def _ends(start, end) -> np.ndarray:
+    return np.array([0.0, 1.0])
+
+
 def _feed_handles(rows: list, rest: np.ndarray, dtype) -> Handles:
     first, second, along, length, rigid = (np.asarray(c).reshape(-1) for c in zip(*rows)) \
         if rows else (np.zeros(0),) * 5
@@ -198,8 +202,9 @@ class Character(JittableModule):
             character's targets); an attached part's attachment targets come after them.
         attachments: per part, the skinning weights of its attachment points in its
             parent's control mesh (None for a part without a parent).
-        rest: `(t, 2)` the character's targets at rest.
-        bone_rows: `(b, 2)` each bone's target rows (start, end).
+        handles: the character's handles: its targets at rest (`handles.rest`), their
+            count and its bones' rows, as a rig's `Handles` (pinning each bone's two
+            ends).
         names: each part's name (static).
         parents: each part's parent, -1 for none (static).
         order: the order the parts are solved in, parents first (static).
@@ -208,8 +213,7 @@ class Character(JittableModule):
     parts: tuple[Rig, ...]
     feeds: tuple[Handles, ...]
     attachments: tuple[Skinning | None, ...]
-    rest: Float[Array, "t 2"]
-    bone_rows: Int[Array, "b 2"]
+    handles: Handles
     names: tuple[str, ...] = eqx.field(static=True)
     parents: tuple[int, ...] = eqx.field(static=True)
     order: tuple[int, ...] = eqx.field(static=True)
@@ -279,9 +283,7 @@ class Character(JittableModule):
             parts=tuple(parts),
             feeds=tuple(feed_rows),
             attachments=tuple(attachments),
-            rest=to_device(points, dtype),
-            bone_rows=to_device(np.asarray([[r, r + 1] for r, _ in bones]).reshape(-1, 2),
-                                np.int32),
+            handles=make_handles(points, bones, pin(points, bones, _ends, 0.0)[2], dtype),
             names=names,
             parents=tuple(parents),
             order=order,
@@ -291,7 +293,7 @@ class Character(JittableModule):
     def handle_positions(self) -> Float[Array, "t 2"]:
         """The targets at rest (a row per point handle, two per bone): targets equal to
         these give back the rest pose."""
-        return self.rest
+        return self.handles.rest
 
     def part_targets(self, part: int, targets: Float[ArrayLike, "t 2"],
                      parent_control: Any = None) -> Float[Array, "h 2"]:
@@ -307,7 +309,7 @@ class Character(JittableModule):
                                               parent.frame)])
 
     def _check_targets(self, targets) -> Float[Array, "t 2"]:
-        return check_targets(targets, self.rest.shape[0], self.rest.dtype)
+        return check_targets(targets, self.handles.count, self.handles.rest.dtype)
 
     def solve(self, targets: Any, solver: Any = DEFAULT_SOLVER, *,
               return_info: bool = False):
@@ -344,7 +346,7 @@ class Character(JittableModule):
                           + (f", follows {self.names[self.parents[i]]!r}"
                              if self.parents[i] >= 0 else "")
                           for i, (name, p) in enumerate(zip(self.names, self.parts)))
-        return f"Character({len(self.parts)} parts: {parts}; {self.rest.shape[0]} targets)"
+        return f"Character({len(self.parts)} parts: {parts}; {self.handles.count} targets)"
 
 
 @_compiled_when_eager
@@ -376,29 +378,34 @@ def _check_order(order, count: int, names) -> Any:
 
 
 class CharacterRenderer(JittableModule):
-    """Draws a layered character: every part with its own layer as texture, the parts
-    laid over each other in a draw order that may change from frame to frame.
+    """Draws a layered character: every part textured by its own layer, the parts laid
+    over each other in a draw order that may change from frame to frame.
 
     Build one with `Renderer.build(character, layers)` (or `CharacterRenderer.build`);
-    call it with the parts' vertices (`character.deform(targets)`). It jits, vmaps over
-    frames and differentiates like `Renderer`.
+    call it with the parts' vertices (`character.deform(targets)`). The parts are drawn
+    as one mesh in one pass, each triangle at its part's draw level, with the layers side
+    by side in one texture: a part's edge over another is antialiased as the outline is,
+    and a picture costs about what one silhouette of as many vertices costs. It jits,
+    vmaps over frames (orders too) and differentiates like `Renderer`.
 
     Attributes:
-        parts: a `Renderer` per part, all with the same window and size.
+        mesh: the `Renderer` of all parts' triangles, their textures side by side.
+        part_of_face: `(f,)` the part each triangle belongs to.
         order: `(p,)` the default draw order, bottom first (the layers').
-        background: `(4,)` straight RGBA drawn where no part is.
+        sizes: each part's number of vertices (static).
         names: the parts' names (static).
     """
 
-    parts: tuple[Renderer, ...]
+    mesh: Renderer
+    part_of_face: Int[Array, " f"]
     order: Int[Array, " p"]
-    background: Float[Array, " 4"]
+    sizes: tuple[int, ...] = eqx.field(static=True)
     names: tuple[str, ...] = eqx.field(static=True)
 
     @classmethod
     def build(cls, character: Character, layers: Any, *, window: Any = None,
               size: Any = None, background: Any = (0.0, 0.0, 0.0, 0.0),
-              **options: Any) -> CharacterRenderer:
+              budget: Any = None, **options: Any) -> CharacterRenderer:
         """A renderer for a character.
 
         Args:
@@ -410,8 +417,9 @@ class CharacterRenderer(JittableModule):
             size: `(rows, cols)` of the output; default the canvas's with its window,
                 else 512 pixels along the window's longer side.
             background: straight RGBA where no part is drawn; transparent by default.
-            options: further `Renderer.build` options for every part (`antialias`,
-                `alpha`, `budget`, `dtype`).
+            budget: the most pixel tiles one picture may cover, as for `Renderer.build`
+                (default: from all the parts' rest meshes).
+            options: `antialias`, `alpha` and `dtype`, as for `Renderer.build`.
         """
         if not isinstance(character, Character):
             raise TypeError(f"character must be an mvcjax.Character, got "
@@ -425,26 +433,51 @@ class CharacterRenderer(JittableModule):
         if window is None:
             window = (-0.5, -0.5, cols - 0.5, rows - 0.5)
             size = (rows, cols) if size is None else size
-        parts = tuple(Renderer.build(rig, layer.picture, window=window, size=size,
-                                     **options)
-                      for rig, layer in zip(character.parts, layers))
-        background = np.asarray(background, np.float64)
-        if background.shape == (3,):
-            background = np.append(background, 1.0)
-        if background.shape != (4,) or not np.all((background >= 0) & (background <= 1)):
-            raise ValueError(f"background must be (r, g, b) or (r, g, b, a) in [0, 1], got "
-                             f"{background.tolist()}.")
-        dtype = parts[0].texture.dtype
-        return cls(parts=parts, order=to_device(np.arange(len(parts)), np.int32),
-                   background=to_device(background, dtype), names=character.names)
+        # Each part checked and textured as a rig of its own would be, then all laid out
+        # as one mesh: the layers side by side, each with a border of its own edge's
+        # colours so that lookups at its edge never read the next one.
+        parts = [Renderer.build(rig, layer.picture, window=window, size=size,
+                                background=background, **options)
+                 for rig, layer in zip(character.parts, layers)]
+        first = parts[0]
+        gap = 2
+        textures = [np.pad(np.asarray(p.texture), ((0, 0), (gap, gap), (0, 0)), mode="edge")
+                    for p in parts]
+        width = textures[0].shape[1]
+        points, faces, offset = [], [], 0
+        for k, p in enumerate(parts):
+            points.append(np.asarray(p.texture_points) + [k * width + gap, 0.0])
+            faces.append(np.asarray(p.faces) + offset)
+            offset += p.rest.shape[0]
+        part_of_face = np.repeat(np.arange(len(parts)), [p.faces.shape[0] for p in parts])
+        dtype = first.texture.dtype
+        mesh = Renderer.from_arrays(
+            np.concatenate([np.asarray(p.rest) for p in parts]), np.concatenate(faces),
+            np.concatenate(points), np.concatenate(textures, axis=1),
+            np.asarray(first.window), first.shape, level=to_device(part_of_face, np.int32),
+            budget=budget, background=np.asarray(first.background),
+            antialias=first.antialias, see_through=first.see_through, dtype=dtype)
+        return cls(mesh=mesh, part_of_face=to_device(part_of_face, np.int32),
+                   order=to_device(np.arange(len(parts)), np.int32),
+                   sizes=tuple(int(p.rest.shape[0]) for p in parts), names=character.names)
 
     @property
     def shape(self) -> tuple[int, int]:
-        return self.parts[0].shape
+        """`(rows, cols)` of the pictures drawn."""
+        return self.mesh.shape
 
     @property
     def window(self) -> Float[Array, " 4"]:
-        return self.parts[0].window
+        """The rectangle `(xmin, ymin, xmax, ymax)` drawn."""
+        return self.mesh.window
+
+    def with_order(self, order: Any) -> Renderer:
+        """The renderer of all parts' triangles, drawn in `order` (part indices, bottom
+        first): each triangle at its part's place in it."""
+        count = len(self.sizes)
+        order = self.order if order is None else _check_order(order, count, self.names)
+        rank = jnp.zeros(count, jnp.int32).at[order].set(jnp.arange(count, dtype=jnp.int32))
+        return eqx.tree_at(lambda r: r.level, self.mesh, rank[self.part_of_face])
 
     def __call__(self, vertices: Any, order: Any = None,
                  window: Any = None) -> Float[Array, "rows cols 4"]:
@@ -454,27 +487,23 @@ class CharacterRenderer(JittableModule):
             vertices: a tuple of every part's `(n_i, 2)` vertices (`character.deform`).
             order: `(p,)` the draw order of this picture, part indices bottom first
                 (numbers: no recompilation); default the layers'.
-            window: another rectangle `(xmin, ymin, xmax, ymax)` to draw.
+            window: another rectangle `(xmin, ymin, xmax, ymax)` to draw, or `"grow"`
+                (as for `Renderer`).
 
         Returns:
             `(rows, cols, 4)` straight RGBA in [0, 1].
         """
-        if not isinstance(vertices, (tuple, list)) or len(vertices) != len(self.parts):
-            raise ValueError(f"vertices must be a tuple of {len(self.parts)} arrays, a "
-                             "part's vertices each (character.deform(targets)), got "
-                             f"{type(vertices).__name__}.")
-        order = self.order if order is None else _check_order(order, len(self.parts),
-                                                                self.names)
-        window = self.window if window is None else jnp.asarray(window, self.window.dtype)
-        layers = jnp.stack([_premultiplied(renderer, v, window)
-                            for renderer, v in zip(self.parts, vertices)])
+        return self.with_order(order)(self._joined(vertices), window)
 
-        def over(k, colour):
-            top = layers[order[k]]
-            return top + (1.0 - top[..., 3:]) * colour
-
-        under = jnp.broadcast_to(_premultiply(self.background), layers.shape[1:])
-        return straight_rgba(jax.lax.fori_loop(0, len(self.parts), over, under))
+    def _joined(self, vertices) -> Float[Array, "n 2"]:
+        shapes = [tuple(getattr(v, "shape", ())) for v in vertices] \
+            if isinstance(vertices, (tuple, list)) else None
+        if shapes is None or shapes != [(n, 2) for n in self.sizes]:
+            raise ValueError(f"vertices must be a tuple of {len(self.sizes)} arrays, a part's "
+                             f"vertices each, of shapes {[(n, 2) for n in self.sizes]} "
+                             f"(character.deform(targets)), got "
+                             f"{shapes if shapes is not None else type(vertices).__name__}.")
+        return jnp.concatenate([jnp.asarray(v, self.window.dtype) for v in vertices])
 
     def frames(self, vertices: Any, order: Any = None, *, chunk: Any = 8) -> np.ndarray:
         """Many pictures, ready to write: `(frames, rows, cols, 4)` `uint8` straight RGBA.
@@ -489,9 +518,10 @@ class CharacterRenderer(JittableModule):
 
         vertices = tuple(np.asarray(v) for v in vertices)
         frames = vertices[0].shape[0]
+        count = len(self.sizes)
         order = np.asarray(self.order if order is None else order)
-        order = _check_order(np.broadcast_to(order, (frames, len(self.parts))),
-                             len(self.parts), self.names)
+        order = _check_order(np.broadcast_to(order, (frames, count)), count, self.names)
+        self.mesh._warn_if_clipped(np.concatenate(vertices, axis=1))
         chunk = min(whole_number(chunk, "chunk", what=" of frames"), frames)
         out = np.empty((frames, *self.shape, 4), np.uint8)
         for begin in range(0, frames, chunk):
@@ -501,15 +531,6 @@ class CharacterRenderer(JittableModule):
             done = min(chunk, frames - begin)
             out[begin:begin + done] = to_uint8(np.asarray(pictures[:done]))
         return out
-
-
-def _premultiply(rgba):
-    return jnp.concatenate([rgba[:3] * rgba[3], rgba[3:]])
-
-
-def _premultiplied(renderer: Renderer, vertices, window):
-    return draw_premultiplied(renderer, jnp.asarray(vertices, renderer.texture.dtype),
-                              window).reshape(*renderer.shape, 4)
 
 
 @eqx.filter_jit

@@ -25,6 +25,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
+from ._character import Character, CharacterRenderer
 from ._checks import check_solver, kind_of, whole_number
 from ._render import Renderer, _picture, check_drawn_mesh, in_window
 from ._rig import Rig
@@ -76,8 +77,17 @@ def _check_channels(channels) -> str:
 
 
 def _check_pair(rig, renderer) -> None:
+    if isinstance(rig, Character):
+        if not isinstance(renderer, CharacterRenderer) or len(renderer.parts) != len(
+                rig.parts):
+            raise TypeError(f"renderer must be the character's, Renderer.build(character, "
+                            f"layers), got {type(renderer).__name__}.")
+        for part, drawn in zip(rig.parts, renderer.parts):
+            check_drawn_mesh(drawn, part.shape_mesh.vertices, part.shape_mesh.faces)
+        return
     if not isinstance(rig, Rig):
-        raise TypeError(f"rig must be an mvcjax.Rig, got {type(rig).__name__}.")
+        raise TypeError(f"rig must be an mvcjax.Rig or an mvcjax.Character, got "
+                        f"{type(rig).__name__}.")
     if not isinstance(renderer, Renderer):
         raise TypeError(f"renderer must be an mvcjax.Renderer (Renderer.build(rig, ...)), got "
                         f"{type(renderer).__name__}.")
@@ -111,7 +121,7 @@ def _prepare_picture(picture, renderer: Renderer, channels: str) -> Array:
     `load_image` reads (alpha: also a `(rows, cols)` mask); traced ones must already be
     floats in [0, 1] of that shape (or `(rows, cols, 4)`)."""
     rows, cols = renderer.shape
-    dtype = renderer.texture.dtype
+    dtype = renderer.window.dtype
     if isinstance(picture, jax.core.Tracer):
         array = picture
     elif channels == "alpha" and not isinstance(picture, str) and np.ndim(picture) == 2:
@@ -199,8 +209,8 @@ def _residuals(rig, renderer, solver, weights, targets, target_picture, blur):
 
 
 def image_loss(
-    rig: Rig,
-    renderer: Renderer,
+    rig: Rig | Character,
+    renderer: Renderer | CharacterRenderer,
     targets: Real[ArrayLike, "h 2"],
     picture: Any,
     *,
@@ -216,7 +226,7 @@ def image_loss(
     them never recompiles.
 
     Args:
-        rig: the `Rig` to pose.
+        rig: the `Rig` to pose, or a `Character` (with its `CharacterRenderer`).
         renderer: a `Renderer` built for this rig (`Renderer.build(rig, ...)`); its
             `shape` is the pictures' size and its window the part of the plane compared.
         targets: `(h, 2)` handle targets (`rig.handle_positions` is the rest pose).
@@ -350,8 +360,8 @@ def _stage(rig, renderer, solver, weights, method, steps: int, start, target_pic
 
 
 def fit_targets(
-    rig: Rig,
-    renderer: Renderer,
+    rig: Rig | Character,
+    renderer: Renderer | CharacterRenderer,
     picture: Any,
     *,
     init: Real[ArrayLike, "h 2"] | None = None,
@@ -378,7 +388,7 @@ def fit_targets(
     stage, picture, start, tolerance and choice of `channels` runs the same program.
 
     Args:
-        rig: the `Rig` to pose.
+        rig: the `Rig` to pose, or a `Character` (with its `CharacterRenderer`).
         renderer: a `Renderer` built for this rig whose window holds the handles (the
             fit sees only what it draws: `mvcjax.fit_window` makes a window that holds a
             pose, or an animation's poses).

@@ -334,7 +334,6 @@ class Renderer(JittableModule):
         if image is not None:
             _check_cover(picture, texture_points, np.asarray(vertices, np.float64),
                          np.asarray(faces))
-        boundary = on_boundary(faces)
         level = None
         if depth is not None:
             depth = np.asarray(depth, np.float64)
@@ -342,13 +341,25 @@ class Renderer(JittableModule):
                 raise ValueError(f"depth must be {len(vertices)} finite numbers, one per rest "
                                  f"vertex of the mesh, got shape {depth.shape}.")
             level = to_device(_levels(depth[faces].mean(axis=1)), np.int32)
+        if alpha not in ("mesh", "picture"):
+            raise ValueError(f"alpha must be 'mesh' or 'picture', got {alpha!r}.")
+        return cls.from_arrays(vertices, faces, texture_points, _texture(picture, alpha),
+                               window, (rows, cols), level=level, budget=budget,
+                               background=background, antialias=antialias,
+                               see_through=alpha == "picture", dtype=dtype)
+
+    @classmethod
+    def from_arrays(cls, vertices, faces, texture_points, texture, window,
+                    size: tuple[int, int], *, level, budget, background, antialias: bool,
+                    see_through: bool, dtype) -> Renderer:
+        """Not for users (`build` checks and prepares its arguments): the renderer of a
+        mesh whose texture positions and premultiplied texture are given, host arrays."""
+        rows, cols = size
+        boundary = on_boundary(faces)
         tile, rest = _tiling(vertices, faces, boundary, window, rows, cols, antialias)
         if budget is None:
             budget = 16 * rest + 4 * -(-rows // tile) * -(-cols // tile)
         budget = whole_number(budget, "budget")
-        if alpha not in ("mesh", "picture"):
-            raise ValueError(f"alpha must be 'mesh' or 'picture', got {alpha!r}.")
-        premultiplied = _texture(picture, alpha)
         background = np.asarray(background, np.float64)
         if background.shape == (3,):
             background = np.append(background, 1.0)
@@ -359,7 +370,7 @@ class Renderer(JittableModule):
             faces=to_device(faces, np.int32),
             boundary=to_device(boundary, bool),
             texture_points=to_device(texture_points, dtype),
-            texture=to_device(premultiplied, dtype),
+            texture=to_device(texture, dtype),
             window=to_device(window, dtype),
             background=to_device(background, dtype),
             rest=to_device(vertices, dtype),
@@ -368,7 +379,7 @@ class Renderer(JittableModule):
             budget=int(budget),
             tile=tile,
             antialias=bool(antialias),
-            see_through=alpha == "picture",
+            see_through=bool(see_through),
         )
 
     def __call__(
@@ -399,8 +410,8 @@ class Renderer(JittableModule):
                                  f"got {window!r}.")
             window = _grown(self.window, vertices, self.shape)
         window = self.window if window is None else jnp.asarray(window, self.texture.dtype)
-        return straight_rgba(draw_premultiplied(self, vertices, window)).reshape(
-            *self.shape, 4)
+        # Under jax.vmap over frames: one frame after another (`_draw_frames`).
+        return with_batching_rule(_draw, _draw_frames)(self, vertices, window)
 
     def frames(self, vertices: Any, *, chunk: Any = None, progress: Any = None,
                devices: Any = None) -> np.ndarray:
@@ -503,13 +514,19 @@ def _draw_frames(frames: int, in_batched, renderer: Renderer, vertices, window):
     program. JAX's batching would fuse the batch's shading into larger loops that redo
     table lookups (`benchmarks/vmap_rules.py` times both)."""
     renderer_batched, vertices_batched, window_batched = in_batched
-    if any(jax.tree.leaves(renderer_batched)):
+    levels_batched = renderer_batched.level is True  # a draw order per frame
+    if any(jax.tree.leaves(eqx.tree_at(lambda r: r.level, renderer_batched, False,
+                                       is_leaf=lambda x: x is None))):
         return None  # a batch of renderers: JAX's own batching
     if not window_batched:
         window = jnp.broadcast_to(window, (frames, *window.shape))
     if not vertices_batched:
         vertices = jnp.broadcast_to(vertices, (frames, *vertices.shape))
-    return jax.lax.map(lambda vw: _draw(renderer, *vw), (vertices, window)), True
+    if not levels_batched:
+        return jax.lax.map(lambda vw: _draw(renderer, *vw), (vertices, window)), True
+    return jax.lax.map(
+        lambda vwl: _draw(eqx.tree_at(lambda r: r.level, renderer, vwl[2]), vwl[0], vwl[1]),
+        (vertices, window, renderer.level)), True
 
 
 @eqx.filter_jit
@@ -702,7 +719,7 @@ def _face_table(tri, texture_tri, boundary):
 def _raster(renderer: Renderer, tri, vertices, rows: int, cols: int):
     """Which triangle each pixel shows: the key (`(level, coverage, triangle)`, -1 for
     none) of the top candidate of each pixel, and of the top candidate that covers the
-    pixel's centre (the layer beneath a partly covering one).
+    pixel's centre and all of the pixel (the layer beneath a partly covering one).
 
     The candidates come in chunks of `_CHUNK` tiles, in a loop that stops after the last
     tile the pose needs: the work follows the pose, not a worst case."""
@@ -769,10 +786,12 @@ def _raster(renderer: Renderer, tri, vertices, rows: int, cols: int):
         front, back = layers
         front = front.at[pixel].max(jnp.where(inside, key, -1), mode="drop")
         if renderer.antialias:
-            # The top candidate covering the pixel's centre: under a partly covering front
-            # triangle (its edge over another part) it shows. No such candidate can lie
-            # above a partial front: it would cover the pixel more, and be the front.
-            back = back.at[pixel].max(jnp.where(solid, key, -1), mode="drop")
+            # The top candidate covering the pixel's centre and the whole pixel: under a
+            # partly covering front triangle (its edge over another part, or over a fold
+            # of its own part) it shows. A partial front never is one, even where it
+            # covers the centre itself, so that what lies beneath shows there too.
+            whole = solid & (steps == 2**_COVERAGE_BITS - 1)
+            back = back.at[pixel].max(jnp.where(whole, key, -1), mode="drop")
         return front, back
 
     empty = jnp.full(pixels + 1, -1, jnp.int32)
@@ -780,22 +799,8 @@ def _raster(renderer: Renderer, tri, vertices, rows: int, cols: int):
     front, back = jax.lax.fori_loop(0, chunks, chunk, (empty, empty))
     if not renderer.antialias:
         return face_bits, [front[:-1]]
-    # Where the front triangle covers the centre itself, it is its own layer beneath.
+    # Where the front triangle covers the whole pixel, nothing shows beneath it.
     return face_bits, [front[:-1], jnp.where(back == front, -1, back)[:-1]]
-
-
-def draw_premultiplied(renderer: Renderer, vertices, window) -> Float[Array, "pixels 4"]:
-    """The picture of the mesh at `vertices` over the renderer's background, premultiplied
-    RGBA a pixel a row (row-major): what a layer lays over those beneath. Under
-    `jax.vmap` over frames, one frame after another (`_draw_frames`)."""
-    return with_batching_rule(_draw, _draw_frames)(renderer, vertices, window)
-
-
-def straight_rgba(colour: Float[Array, "*pixels 4"]) -> Float[Array, "*pixels 4"]:
-    """Premultiplied RGBA to straight, in [0, 1] (no colour where nothing covers)."""
-    alpha = colour[..., 3:]
-    straight = jnp.where(jnp.arange(4) < 3, colour / jnp.where(alpha > 0, alpha, 1.0), colour)
-    return jnp.clip(straight, 0.0, 1.0)
 
 
 @eqx.filter_jit
@@ -821,7 +826,10 @@ def _draw(renderer: Renderer, vertices, window):
             partial = jnp.ones_like(partial)
         beneath = jnp.where(partial, layers[1], -1)
         colour = _shade_where(renderer, table, beneath, face_bits, cols, colour)
-    return _shade_where(renderer, table, front, face_bits, cols, colour)
+    colour = _shade_where(renderer, table, front, face_bits, cols, colour)
+    alpha = colour[:, 3:]
+    straight = jnp.where(jnp.arange(4) < 3, colour / jnp.where(alpha > 0, alpha, 1.0), colour)
+    return jnp.clip(straight, 0.0, 1.0).reshape(rows, cols, 4)
 
 
 def _shade_where(renderer: Renderer, table, layer, face_bits: int, cols: int, colour):

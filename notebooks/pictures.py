@@ -328,6 +328,38 @@ print(f"{(outputs / 'pictures-walk.gif').stat().st_size / 1e3:.0f} kB")
 display(Image(filename=outputs / "pictures-walk.gif", embed=True))
 
 # %% [markdown]
+# ## A character in layers
+# Drawn as one silhouette, an arm that lies over the torso at rest is welded to it. Drawn
+# in layers (a body, two arms, and a right hand of its own), each layer is a part with its
+# own meshes, all posed by one set of handles: a bone along each arm (its shoulder, inside
+# the torso too, pins the torso there), a point on the chest and one on each ankle. The
+# right hand holds no handle and follows the arm it overlaps. `layers` could as well be a
+# Photoshop or OpenRaster file (`mvcjax.load_layers`).
+
+# %%
+from mvcjax import datasets
+
+layers = datasets.layered_figure()
+character = mvcjax.Character.build(layers, datasets.layered_figure_handles())
+print(character)
+wave = datasets.layered_figure_wave(30)  # the right arm across the chest and back
+parts = mvcjax.deform_frames(character, wave)
+drawn = mvcjax.Renderer.build(character, layers, background=(1, 1, 1, 1))
+# Each frame may have its own draw order: in the second half the body goes on top of the
+# left arm, which then hangs behind it.
+orders = np.where(np.arange(30)[:, None] < 15, [0, 1, 2, 3], [1, 0, 2, 3])
+waving = drawn.frames(parts, order=orders)
+export.write_animation(outputs / "pictures-layers.gif", waving, fps=15)
+
+fig, axes = plt.subplots(1, 4, figsize=(12, 4))
+for ax, k in zip(axes, (0, 8, 15, 24)):
+    ax.imshow(waving[k])
+    ax.set_title(f"frame {k}, order {orders[k].tolist()}")
+    ax.axis("off")
+plt.show()
+display(Image(filename=outputs / "pictures-layers.gif", embed=True))
+
+# %% [markdown]
 # ## Outline and mesh
 # `outline_rings` gives the deformed mesh's boundary, `write_svg` writes it as a vector
 # outline (y flipped for the screen); `write_obj` writes the mesh with texture coordinates

@@ -95,12 +95,17 @@ def _alpha(part_renderer, vertices):
     return np.asarray(part_renderer(vertices))[..., 3]
 
 
-def test_a_swing_across_the_torso_changes_only_the_pixels_the_arm_passes(renderer, posed):
+def test_a_swing_across_the_torso_changes_only_the_pixels_the_arm_passes(character, layers,
+                                                                         renderer, posed):
     # Pixels that neither the right arm nor its hand covers, now or at rest, keep their
     # colour in every frame; where the arm's edge lies over the torso, the picture is its
     # antialiased coverage blended over the torso (no torso patch above it, no steps).
     pictures = renderer.frames(posed).astype(np.float64) / 255
-    parts = [renderer.parts[i] for i in range(4)]
+    # Each part drawn alone, as a rig of its own, its triangles on one level as in the
+    # character's picture.
+    parts = [mvcjax.Renderer.build(rig, layer.picture,
+                                   depth=np.zeros(rig.shape_mesh.vertices.shape[0]))
+             for rig, layer in zip(character.parts, layers)]
     moving = [RIGHT_ARM, HAND]
     rest_cover = sum(_alpha(parts[i], posed[i][0]) for i in moving)
     blended = 0

@@ -140,13 +140,12 @@ def test_vmap_draws_frames_in_turn_as_the_plain_vmap_would_with_gradients(render
     # same pictures as JAX's batching of the single frame's drawing, per-frame windows
     # ("grow") too, and the gradients of single frames; a batch of renderers is batched
     # by JAX.
-    from mvcjax._render import _draw, straight_rgba
+    from mvcjax._render import _draw
 
     frames = jnp.stack([rig.shape_mesh.vertices * (1.0 + 0.1 * s) + jnp.array([s, -s])
                         for s in range(3)])
     fast = jax.jit(jax.vmap(renderer))(frames)
-    plain = jax.jit(jax.vmap(lambda v: straight_rgba(_draw(renderer, v, renderer.window))))(
-        frames).reshape(fast.shape)
+    plain = jax.jit(jax.vmap(lambda v: _draw(renderer, v, renderer.window)))(frames)
     np.testing.assert_allclose(premultiplied(fast), premultiplied(plain), atol=ROUNDING)
     grown = jax.vmap(lambda v: renderer(v, window="grow"))(frames)
     for k in range(3):
