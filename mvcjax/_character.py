@@ -30,7 +30,7 @@ from ._handles import Bone, Handles, make_handles, parse_handles, pin
 from ._layers import Layer, load_layers
 from ._module import JittableModule
 from ._render import Renderer
-from ._rig import Rig, _compiled_when_eager, _thickness
+from ._rig import ControlMesh, Rig, ShapeMesh, _compiled_when_eager, _thickness
 from ._shape import Shape
 from ._skinning import Skinning
 from ._solvers import DEFAULT_SOLVER, AbstractSolver
@@ -295,6 +295,20 @@ class Character(JittableModule):
         these give back the rest pose."""
         return self.handles.rest
 
+    @property
+    def shape_mesh(self) -> ShapeMesh:
+        """All parts' shape meshes as one (vertices part after part, the layers' order):
+        what `jnp.concatenate(character.deform(targets))` poses."""
+        meshes = [part.shape_mesh for part in self.parts]
+        return ShapeMesh(*_joined([(m.vertices, m.faces, m.handles) for m in meshes]))
+
+    @property
+    def control_mesh(self) -> ControlMesh:
+        """All parts' control meshes as one, as `shape_mesh` joins the shape meshes."""
+        meshes = [part.control_mesh for part in self.parts]
+        return ControlMesh(*_joined([(m.vertices, m.faces, m.outer, m.inner, m.handles)
+                                     for m in meshes]))
+
     def part_targets(self, part: int, targets: Float[ArrayLike, "t 2"],
                      parent_control: Any = None) -> Float[Array, "h 2"]:
         """Part `part`'s targets (its rig's) for the character's, its attachment rows
@@ -347,6 +361,15 @@ class Character(JittableModule):
                              if self.parents[i] >= 0 else "")
                           for i, (name, p) in enumerate(zip(self.names, self.parts)))
         return f"Character({len(self.parts)} parts: {parts}; {self.handles.count} targets)"
+
+
+def _joined(meshes: list[tuple]) -> list:
+    """Meshes `(vertices, indices...)` as one: vertices stacked, every index array shifted
+    by the vertices before its mesh."""
+    starts = np.cumsum([0] + [m[0].shape[0] for m in meshes])
+    return [jnp.concatenate([m[0] for m in meshes])] + [
+        jnp.concatenate([m[k] + start for m, start in zip(meshes, starts)])
+        for k in range(1, len(meshes[0]))]
 
 
 @_compiled_when_eager

@@ -78,12 +78,10 @@ def _check_channels(channels) -> str:
 
 def _check_pair(rig, renderer) -> None:
     if isinstance(rig, Character):
-        if not isinstance(renderer, CharacterRenderer) or len(renderer.parts) != len(
-                rig.parts):
+        if not isinstance(renderer, CharacterRenderer):
             raise TypeError(f"renderer must be the character's, Renderer.build(character, "
                             f"layers), got {type(renderer).__name__}.")
-        for part, drawn in zip(rig.parts, renderer.parts):
-            check_drawn_mesh(drawn, part.shape_mesh.vertices, part.shape_mesh.faces)
+        check_drawn_mesh(renderer.mesh, rig.shape_mesh.vertices, rig.shape_mesh.faces)
         return
     if not isinstance(rig, Rig):
         raise TypeError(f"rig must be an mvcjax.Rig or an mvcjax.Character, got "
@@ -115,7 +113,7 @@ def _check_in_view(rig, renderer, targets) -> None:
                       f"go; {hint}.", stacklevel=3)
 
 
-def _prepare_picture(picture, renderer: Renderer, channels: str) -> Array:
+def _prepare_picture(picture, renderer: Renderer | CharacterRenderer, channels: str) -> Array:
     """The target as the loss compares it: `(rows, cols, 4)` premultiplied RGBA (a mask
     is its alpha, black), in the renderer's dtype. Concrete pictures may be anything
     `load_image` reads (alpha: also a `(rows, cols)` mask); traced ones must already be

@@ -32,6 +32,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._animation import deform_frames
+from ._character import Character, CharacterRenderer
 from ._checks import check_solver
 from ._folds import signed_areas
 from ._render import Renderer, _window, check_drawn_mesh, fit_window, in_window
@@ -52,7 +53,7 @@ _HINT_COLOR = "#b01010"
 _HINT_FONT_POINTS = 8.0
 
 
-def _pose(rig: Rig, renderer: Renderer | None, solver: AbstractSolver,
+def _pose(rig: Rig | Character, renderer: Renderer | None, solver: AbstractSolver,
           rest_sign: np.ndarray, targets: Float[Array, "h 2"]):
     """The control and shape meshes for these targets; with a renderer, the picture as
     `uint8` RGBA (a quarter of the bytes to hand to matplotlib, which draws those fastest);
@@ -60,6 +61,8 @@ def _pose(rig: Rig, renderer: Renderer | None, solver: AbstractSolver,
     `flipped_triangles` counts them), and how many."""
     control = rig.solve(targets, solver)
     shape = rig.skin(control)
+    if isinstance(rig, Character):  # its parts, drawn as one mesh
+        control, shape = jnp.concatenate(control), jnp.concatenate(shape)
     flipped = jnp.sign(signed_areas(shape, rig.shape_mesh.faces)) != rest_sign
     folds = jnp.sum(flipped, dtype=jnp.int32)
     if renderer is None:
@@ -169,9 +172,9 @@ class Posing:
                  **render_options: Any):
         import matplotlib.pyplot as plt
 
-        if not isinstance(rig, Rig):
-            raise TypeError(f"rig must be an mvcjax.Rig (mvcjax.Rig.build(shape, handles)), "
-                            f"got {type(rig).__name__}.")
+        if not isinstance(rig, (Rig, Character)):
+            raise TypeError(f"rig must be an mvcjax.Rig (mvcjax.Rig.build(shape, handles)) "
+                            f"or an mvcjax.Character, got {type(rig).__name__}.")
         check_solver(solver)
         if isinstance(pick_radius, bool) or not (isinstance(pick_radius, (int, float))
                                                 and pick_radius > 0):
@@ -207,12 +210,14 @@ class Posing:
                                       **render_options)
         elif renderer is not None and (image is not None or render_options):
             raise ValueError("pass either renderer= or image= (and render options), not both.")
+        self.renderer = renderer
+        # A character's parts are drawn as one mesh, in the layers' order.
+        renderer = renderer.mesh if isinstance(renderer, CharacterRenderer) else renderer
         if renderer is not None:
             check_drawn_mesh(renderer, rig.shape_mesh.vertices, rig.shape_mesh.faces)
-        self.renderer = renderer
         # The rig, renderer and solver are constants of the session's one program.
         self._pose = jax.jit(lambda t: _pose(rig, renderer, solver, rest_sign, t))
-        self._dtype = np.dtype(rig.energy.rest.dtype)
+        self._dtype = np.dtype(rig.handles.rest.dtype)
         self._pick_radius = float(pick_radius)
         self._bones = np.asarray(rig.handles.bones, np.int64).reshape(-1, 2)
         self._pivot = _rigid_bone_pivots(rig)
@@ -291,7 +296,8 @@ class Posing:
     def frames(self, fps: Any = None) -> Float[Array, "frames n 2"]:
         """`(frames, n, 2)` the recorded poses of the shape mesh (`deform_frames` of
         `recorded(fps)`), ready for `Renderer.frames` and `mvcjax.export`."""
-        return deform_frames(self.rig, self.recorded(fps).astype(self._dtype), self.solver)
+        frames = deform_frames(self.rig, self.recorded(fps).astype(self._dtype), self.solver)
+        return jnp.concatenate(frames, axis=1) if isinstance(frames, tuple) else frames
 
     def write_animation(self, path: Any, *, fps: Any = 30, renderer: Any = None,
                         **options: Any) -> None:
@@ -304,7 +310,10 @@ class Posing:
 
         renderer = renderer if renderer is not None else self.renderer
         if renderer is None:
-            renderer = Renderer.build(self.rig, window=self.window)
+            mesh = self.rig.shape_mesh
+            renderer = Renderer.build((mesh.vertices, mesh.faces), window=self.window)
+        if isinstance(renderer, CharacterRenderer):
+            renderer = renderer.mesh
         write_animation(path, renderer.frames(self.frames(fps)), fps=fps, **options)
 
     def set_targets(self, targets: Any) -> None:
@@ -588,7 +597,7 @@ def _warn_if_no_window(figure) -> None:
             stacklevel=3)
 
 
-def _rigid_bone_pivots(rig: Rig) -> dict[int, tuple[int, float]]:
+def _rigid_bone_pivots(rig: Rig | Character) -> dict[int, tuple[int, float]]:
     """For each target row that ends a rigid bone: the row of its other end, and the
     bone's rest length."""
     pivots = {}

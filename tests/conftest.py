@@ -128,6 +128,8 @@ def local_point(rig, offsets, noise=0.0, seed=0):
 # Exhaustive variants, run by `pytest -m slow` (CI runs them in a step of their own): the
 # default suite keeps one or two of each family, and every test that only they would run.
 SLOW = [
+    # A character's pose fitted to its picture (compiling the fit through every part).
+    "tests/test_character.py::test_fit_targets_finds_a_characters_pose_from_its_picture",
     # Running the notebooks (each in a kernel of its own, slow); that each matches
     # its script stays in the default suite.
     "tests/test_notebooks.py::test_notebook_runs[*]",

@@ -267,3 +267,51 @@ def test_the_character_and_its_parts_are_described(character):
     assert "4 parts" in text and "'right hand'" in text and "follows 'right arm'" in text
     rest, _, _ = parse_handles(datasets.layered_figure_handles())
     np.testing.assert_allclose(character.handle_positions, rest, atol=1e-4)
+
+
+def test_fit_targets_finds_a_characters_pose_from_its_picture(character, layers, wave):
+    # Drawn small, the arm turned 24 degrees; fitted from rest, coarse to fine.
+    renderer = mvcjax.Renderer.build(character, layers, size=(65, 60))
+    true = jnp.asarray(wave[2])
+    picture = np.asarray(renderer(character.deform(true)))
+    with pytest.warns(RuntimeWarning, match="did not converge"):  # few steps, to be quick
+        result = mvcjax.fit_targets(character, renderer, picture, steps=15, blurs=(3.0, 0.0))
+    pixel = 4.0  # units per pixel
+    for fitted, drawn in zip(character.deform(result.targets), character.deform(true)):
+        assert float(jnp.max(jnp.abs(fitted - drawn))) < 0.25 * pixel
+    with pytest.raises(TypeError, match="renderer must be the character's"):
+        mvcjax.image_loss(character, renderer.mesh, true, picture)
+
+
+def test_interact_drags_a_character_and_records_it(character, layers, tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.backend_bases import MouseEvent
+
+    def mouse(posing, kind, point):
+        x, y = posing.axes.transData.transform(np.asarray(point, np.float64))
+        MouseEvent(f"{kind}_event", posing.figure.canvas, x, y, button=1)._process()
+
+    try:
+        with pytest.warns(UserWarning):  # Agg shows no window, and says so
+            posing = mvcjax.interact(character, layers, record=True)
+        posing.figure.canvas.draw()
+        wrist = posing.targets[4].copy()
+        path = [wrist + k * np.array([-6.0, 5.0]) for k in range(1, 5)]
+        mouse(posing, "button_press", wrist)
+        for point in path:
+            mouse(posing, "motion_notify", point)
+        mouse(posing, "button_release", path[-1])
+        assert posing.updates == len(path)
+        expected = jnp.concatenate(character.deform(posing.targets))
+        np.testing.assert_allclose(posing.shape_vertices, expected, atol=1e-3)
+        drawn = mvcjax.export.to_uint8(posing.renderer(character.deform(posing.targets)))
+        assert np.abs(posing.picture.astype(int) - drawn.astype(int)).max() <= 1
+        frames = posing.frames()
+        assert frames.shape == (len(path) + 1, character.shape_mesh.vertices.shape[0], 2)
+        posing.write_animation(tmp_path / "drag.gif", fps=10)
+        assert (tmp_path / "drag.gif").stat().st_size > 1000
+    finally:
+        plt.close("all")
