@@ -444,3 +444,29 @@ def test_frames_say_once_that_an_animation_leaves_the_window(renderer, rig, pict
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         whole.frames(leaving)
+
+
+def _sprite_arm_across_the_chest():
+    from mvcjax import datasets
+    from mvcjax._handles import parse_handles
+
+    rig = mvcjax.Rig.build(datasets.sprite(), datasets.sprite_handles())
+    targets, _, _ = parse_handles(datasets.sprite_handles())
+    shoulder, turn = targets[3], np.radians(-100.0)  # the right arm, across the chest
+    rotation = np.array([[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]])
+    targets[4] = shoulder + rotation @ (targets[4] - shoulder)
+    return rig, rig.deform(targets), datasets.sprite_picture()
+
+
+def test_a_part_over_its_own_shape_draws_no_see_through_seam():
+    # Where the swung arm's edge crosses the chest, the pixels it covers partly show the
+    # chest beneath, not the background: no pixel inside the silhouette is partly
+    # transparent (one whose eight neighbours are all opaque).
+    rig, posed, picture = _sprite_arm_across_the_chest()
+    alpha = np.asarray(mvcjax.Renderer.build(rig, picture)(posed))[..., 3]
+    padded = np.pad(alpha, 1)
+    neighbours = np.min([np.roll(np.roll(padded, dy, 0), dx, 1)[1:-1, 1:-1]
+                         for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0)],
+                        axis=0)
+    seam = (alpha < 0.98) & (neighbours >= 0.98)
+    assert int(seam.sum()) == 0
