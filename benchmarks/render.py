@@ -25,8 +25,8 @@ Three parts, each in the same run, float32 on whatever JAX device is the default
   the body to its tip; about 6k shape vertices in all), drawn at 512 x 512 with the
   limbs turned: the build's time, the compile and median times of one jitted frame's
   pose (`Character.deform`) and picture (`CharacterRenderer`), and the same for the
-  same figure as one silhouette (its layers flattened, one rig and one renderer), with
-  the ratios of the two.
+  same figure as one silhouette (its layers flattened, one rig and one renderer, meshed
+  to as many shape vertices), with the ratios of the two.
 - export: an animation of the horse dragged there and back, 256 x 256, written by
   `mvcjax.export.write_animation` as GIF, animated PNG, WebP and MP4: seconds and bytes.
 
@@ -597,30 +597,33 @@ def run_layers(part_counts, repeats: int) -> list[dict]:
             a = layer[..., 3:]
             flat[..., :3] = layer[..., :3] * a + flat[..., :3] * (1 - a)
             flat[..., 3:] = a + flat[..., 3:] * (1 - a)
-        rig = mvcjax.Rig.build(mvcjax.Shape.from_image(flat), handles, shape_spacing=spacing,
-                               dtype=jnp.float32)
+        vertices_in_all = sum(p.shape_mesh.vertices.shape[0] for p in character.parts)
+        silhouette = mvcjax.Shape.from_image(flat)
+        rig = mvcjax.Rig.build(silhouette, handles, dtype=jnp.float32,
+                               shape_spacing=spacing_for(silhouette, vertices_in_all))
         single = mvcjax.Renderer.build(rig, flat, size=size)
         targets = jnp.asarray(pose, jnp.float32)
         deform = jax.jit(mvcjax.Character.deform)
         draw = jax.jit(lambda r, v: r(v))
         one_deform = jax.jit(mvcjax.Rig.deform)
+        compiles = {"deform_compile_ms": compile_ms(deform, character, targets)}
         vertices = deform(character, targets)
-        silhouette = one_deform(rig, targets)
+        compiles["render_compile_ms"] = compile_ms(draw, renderer, vertices)
+        posed = one_deform(rig, targets)
         row = {
             "kind": "layers",
             "parts": parts,
-            "shape_vertices": int(sum(p.shape_mesh.vertices.shape[0] for p in character.parts)),
+            "shape_vertices": int(vertices_in_all),
             "control_vertices": int(sum(p.control_mesh.vertices.shape[0]
                                         for p in character.parts)),
             "silhouette_shape_vertices": int(rig.shape_mesh.vertices.shape[0]),
             "size": f"{size[0]}x{size[1]}",
             "build_s": build_s,
-            "deform_compile_ms": compile_ms(deform, character, targets),
+            **compiles,
             "deform_ms": median_ms(deform, [(character, targets)], repeats),
-            "render_compile_ms": compile_ms(draw, renderer, vertices),
             "render_ms": median_ms(draw, [(renderer, vertices)], repeats),
             "silhouette_deform_ms": median_ms(one_deform, [(rig, targets)], repeats),
-            "silhouette_render_ms": median_ms(draw, [(single, silhouette)], repeats),
+            "silhouette_render_ms": median_ms(draw, [(single, posed)], repeats),
         }
         row["deform_over_silhouette"] = row["deform_ms"] / row["silhouette_deform_ms"]
         row["render_over_silhouette"] = row["render_ms"] / row["silhouette_render_ms"]
