@@ -43,15 +43,25 @@ _LEAST_OVERLAP = 1e-3
 
 
 def _part_shapes(layers: list[Layer], alpha_threshold, tolerance) -> list[Shape]:
+    from skimage.measure import label
+
+    from ._image import image_mask
+
     shapes = []
     for layer in layers:
-        try:
-            shapes.append(Shape.from_image(layer.picture, alpha_threshold=alpha_threshold,
-                                           tolerance=tolerance))
-        except ValueError as error:
-            raise ValueError(f"layer {layer.name!r} cannot be made a part: {error} A part is "
-                             "one connected region of opaque pixels; split a layer holding "
-                             "several into one layer each.") from error
+        mask = image_mask(layer.picture, alpha_threshold=alpha_threshold)
+        regions = int(label(mask, connectivity=1).max())
+        if regions == 0:
+            raise ValueError(f"layer {layer.name!r} has no pixel with alpha above "
+                             f"{alpha_threshold} (alpha_threshold): nothing to rig; draw the "
+                             "part opaque, lower alpha_threshold, or drop the layer.")
+        if regions > 1:
+            raise ValueError(
+                f"layer {layer.name!r} holds {regions} separate regions of pixels with alpha "
+                f"above {alpha_threshold}; a part is one connected region: split the layer "
+                "into one layer per region (two eyes: two layers), or join the regions.")
+        shapes.append(Shape.from_image(layer.picture, alpha_threshold=alpha_threshold,
+                                       tolerance=tolerance))
     return shapes
 
 

@@ -248,6 +248,12 @@ def test_bad_layers_and_handles_are_refused_with_the_fix(tmp_path):
         mvcjax.Character.build([a, b], [left, (32.0, 60.0)])
     with pytest.raises(ValueError, match="'layer 1' holds no handle and overlaps no other"):
         mvcjax.Character.build([a, b], [left, (14.0, 31.0)])
+    eyes = np.maximum(_disc((20, 32), 4), _disc((44, 32), 4))
+    with pytest.raises(ValueError, match="'layer 1' holds 2 separate regions"):
+        mvcjax.Character.build([a, eyes], [left])
+    faint = a * np.array([1, 1, 1, 0.3], np.float32)
+    with pytest.raises(ValueError, match="'layer 1' has no pixel with alpha above 0.5"):
+        mvcjax.Character.build([a, faint], [left])
     with pytest.raises(ValueError, match="attach names a part 'nose'"):
         mvcjax.Character.build([a, b], [left, right], attach={"nose": 0})
 
