@@ -49,12 +49,11 @@ def _part_shapes(layers: list[Layer], alpha_threshold, tolerance) -> list[Shape]
 
     shapes = []
     for layer in layers:
-        mask = image_mask(layer.picture, alpha_threshold=alpha_threshold)
+        try:
+            mask = image_mask(layer.picture, alpha_threshold=alpha_threshold)
+        except ValueError as error:
+            raise ValueError(f"layer {layer.name!r}: {error}") from error
         regions = int(label(mask, connectivity=1).max())
-        if regions == 0:
-            raise ValueError(f"layer {layer.name!r} has no pixel with alpha above "
-                             f"{alpha_threshold} (alpha_threshold): nothing to rig; draw the "
-                             "part opaque, lower alpha_threshold, or drop the layer.")
         if regions > 1:
             raise ValueError(
                 f"layer {layer.name!r} holds {regions} separate regions of pixels with alpha "

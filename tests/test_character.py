@@ -252,7 +252,7 @@ def test_bad_layers_and_handles_are_refused_with_the_fix(tmp_path):
     with pytest.raises(ValueError, match="'layer 1' holds 2 separate regions"):
         mvcjax.Character.build([a, eyes], [left])
     faint = a * np.array([1, 1, 1, 0.3], np.float32)
-    with pytest.raises(ValueError, match="'layer 1' has no pixel with alpha above 0.5"):
+    with pytest.raises(ValueError, match="layer 'layer 1': alpha is at or below 0.5"):
         mvcjax.Character.build([a, faint], [left])
     with pytest.raises(ValueError, match="attach names a part 'nose'"):
         mvcjax.Character.build([a, b], [left, right], attach={"nose": 0})
