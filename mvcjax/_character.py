@@ -331,6 +331,12 @@ class Character(JittableModule):
         return jnp.concatenate([own, attached(parent.frame.to_local(parent_control),
                                               parent.frame)])
 
+    def with_weights(self, weights: Any) -> Character:
+        """The same character with other term weights (an `mvcjax.Weights`) in every part,
+        as `Rig.with_weights` gives them to a rig (no recompilation with dense factors)."""
+        parts = tuple(part.with_weights(weights) for part in self.parts)
+        return eqx.tree_at(lambda c: c.parts, self, parts)
+
     def _check_targets(self, targets) -> Float[Array, "t 2"]:
         return check_targets(targets, self.handles.count, self.handles.rest.dtype)
 

@@ -91,6 +91,17 @@ def test_new_targets_and_new_orders_do_not_recompile(character, renderer, wave):
     assert draw._cache_size() == 1
 
 
+def test_new_weights_change_every_part_without_recompiling(character, wave):
+    deform = jax.jit(lambda c, t: c.deform(t))
+    # The chest pulled up against the shoulders and ankles: with handles that pull a
+    # hundredth as hard, the body gives less.
+    soft = character.with_weights(mvcjax.Weights(handle=1.0))
+    targets = jnp.asarray(wave[12]).at[0, 1].add(20.0)
+    firm, loose = deform(character, targets), deform(soft, targets)
+    assert deform._cache_size() == 1
+    assert float(jnp.max(jnp.abs(loose[BODY] - firm[BODY]))) > 1.0
+
+
 def _alpha(part_renderer, vertices):
     return np.asarray(part_renderer(vertices))[..., 3]
 
