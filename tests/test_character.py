@@ -332,3 +332,16 @@ def test_interact_drags_a_character_and_records_it(character, layers, tmp_path):
         assert (tmp_path / "drag.gif").stat().st_size > 1000
     finally:
         plt.close("all")
+
+
+def test_a_posed_character_exports_as_one_mesh_and_its_outlines(character, posed, tmp_path):
+    mesh = character.shape_mesh
+    frame = jnp.concatenate([part[15] for part in posed])
+    rings = mvcjax.export.outline_rings(frame, mesh.faces)
+    assert len(rings) == len(character.parts)  # one outline per part, none merged
+    mvcjax.export.write_svg(tmp_path / "pose.svg", rings)
+    mvcjax.export.write_obj(tmp_path / "pose.obj", frame, mesh.faces)
+    lines = (tmp_path / "pose.obj").read_text().splitlines()
+    assert sum(line.startswith("v ") for line in lines) == mesh.vertices.shape[0]
+    assert sum(line.startswith("f ") for line in lines) == mesh.faces.shape[0]
+    assert (tmp_path / "pose.svg").read_text().count("<path") >= 1
