@@ -1,4 +1,5 @@
-"""Command line: `mvcjax demo [--out FILE.png] [--animation FILE.gif]`, and
+"""Command line: `mvcjax demo [--out FILE.png] [--animation FILE.gif] [--layers FILE.gif]`,
+and
 `mvcjax dataset SPRITES OUT [--poses N] [--size PIXELS] ...`."""
 
 from __future__ import annotations
@@ -119,7 +120,31 @@ def _demo(args) -> int:
     _say(f"animation  : {args.animation} ({args.frames} frames, {args.size}x{args.size}; "
          f"deformed and drawn in {draw_time:.1f} s, compiling included)")
     _say(f"figure     : {args.out}")
+    if args.layers is not None:
+        _layers_demo(args.layers, args.frames)
     return 0
+
+
+def _layers_demo(path, frames: int) -> None:
+    """The built-in figure drawn in layers (a body, two arms over its sides, a hand of its
+    own), its right arm swung across the body and back, written as an animation."""
+    import time
+
+    import mvcjax
+    from mvcjax import datasets, export
+
+    _say("  posing a character drawn in layers, its arm across the body and back ...")
+    t0 = time.perf_counter()
+    layers = datasets.layered_figure()
+    character = mvcjax.Character.build(layers, datasets.layered_figure_handles())
+    build = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    parts = mvcjax.deform_frames(character, datasets.layered_figure_wave(frames))
+    renderer = mvcjax.Renderer.build(character, layers, background=(1.0, 1.0, 1.0, 1.0))
+    export.write_animation(path, renderer.frames(parts), fps=24)
+    _say(f"layers     : {character}")
+    _say(f"           : built in {build:.1f} s; {frames} frames posed and drawn in "
+         f"{time.perf_counter() - t0:.1f} s, compiling included: {path}")
 
 
 def _arm_overhead(degrees: float) -> dict:
@@ -184,6 +209,9 @@ def main(argv=None) -> int:
     demo.add_argument("--animation", default="mvcjax-demo.gif",
                       help="animation to write (.gif, .png, .webp or .mp4)")
     demo.add_argument("--frames", type=int, default=48, help="frames in the animation")
+    demo.add_argument("--layers", default=None,
+                      help="also pose a character drawn in layers (its arm across the body "
+                           "and back) and write it to this animation file")
     demo.add_argument("--size", type=int, default=320, help="animation side, in pixels")
     demo.add_argument("--shape-spacing", type=float, default=None,
                       help="edge length of the shape mesh (default: the rig's)")
