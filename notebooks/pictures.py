@@ -34,7 +34,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 import mvcjax
-from mvcjax import export, plot
+from mvcjax import datasets, export, plot
 
 # %% [markdown]
 # ## A character picture
@@ -337,8 +337,6 @@ display(Image(filename=outputs / "pictures-walk.gif", embed=True))
 # Photoshop or OpenRaster file (`mvcjax.load_layers`).
 
 # %%
-from mvcjax import datasets
-
 layers = datasets.layered_figure()
 character = mvcjax.Character.build(layers, datasets.layered_figure_handles())
 print(character)
