@@ -128,8 +128,12 @@ def local_point(rig, offsets, noise=0.0, seed=0):
 # Exhaustive variants, run by `pytest -m slow` (CI runs them in a step of their own): the
 # default suite keeps one or two of each family, and every test that only they would run.
 SLOW = [
-    # A character's pose fitted to its picture (compiling the fit through every part).
+    # A character's pose fitted to its picture (compiling the fit through every part),
+    # dragged with the mouse, and differentiated through its picture; its gradients
+    # against finite differences stay in the default suite.
     "tests/test_character.py::test_fit_targets_finds_a_characters_pose_from_its_picture",
+    "tests/test_character.py::test_interact_drags_a_character_and_records_it",
+    "tests/test_character.py::test_gradients_flow_from_the_picture_to_the_targets",
     # Running the notebooks (each in a kernel of its own, slow); that each matches
     # its script stays in the default suite.
     "tests/test_notebooks.py::test_notebook_runs[*]",
