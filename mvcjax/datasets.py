@@ -343,11 +343,57 @@ _SPRITE_FEET = (((90.0, 15.0), 16.0, 7.0), ((150.0, 15.0), 16.0, 7.0))  # centre
 _SPRITE_IN = 10.0  # the wrist handles sit this far in from the hands' tips
 
 
-def _sprite_hands() -> np.ndarray:
-    length, out, _ = _SPRITE_ARM
+def _sprite_hands(out: float = _SPRITE_ARM[1]) -> np.ndarray:
+    """Where the arms end, hanging `out` degrees out from straight down."""
+    length, _, _ = _SPRITE_ARM
     t = np.radians(out)
     return np.array([[s[0] + side * length * np.sin(t), s[1] - length * np.cos(t)]
                      for s, side in zip(_SPRITE_SHOULDERS, (-1.0, 1.0))])
+
+
+_SKIN, _SHIRT, _SLEEVE = (236, 188, 150, 255), (52, 101, 164, 255), (32, 74, 135, 255)
+_TROUSERS, _SHOES = (60, 60, 70, 255), (120, 70, 30, 255)
+
+
+def _pixel(p) -> tuple[float, float]:
+    """Shape coordinates (y up) to Pillow's (x, y down) on the sprite's canvas."""
+    return (p[0], _SPRITE_SIZE[1] - 1 - p[1])
+
+
+def _ellipse(draw, centre, rx, ry, colour) -> None:
+    x, y = _pixel(centre)
+    draw.ellipse([x - rx, y - ry, x + rx, y + ry], fill=colour)
+
+
+def _capsule(draw, a, b, radius, colour) -> None:
+    draw.line([_pixel(a), _pixel(b)], fill=colour, width=round(2 * radius))
+    for p in (a, b):
+        _ellipse(draw, p, radius, radius, colour)
+
+
+def _sprite_body(draw) -> None:
+    """The sprite's legs, feet, neck, torso and head, drawn in that order."""
+    for hip, ankle in zip(_SPRITE_HIPS, _SPRITE_ANKLES):
+        _capsule(draw, hip, ankle, _SPRITE_LEG, _TROUSERS)
+    for centre, rx, ry in _SPRITE_FEET:
+        _ellipse(draw, centre, rx, ry, _SHOES)
+    (x0, y0), (x1, y1) = _SPRITE_NECK
+    draw.rectangle([*_pixel((x0, y1)), *_pixel((x1, y0))], fill=_SKIN)
+    centre, rx, ry = _SPRITE_TORSO
+    _ellipse(draw, centre, rx, ry, _SHIRT)
+    _ellipse(draw, _SPRITE_HEAD[0], _SPRITE_HEAD[1], _SPRITE_HEAD[1], _SKIN)
+
+
+def _drawn(*steps) -> np.ndarray:
+    """A transparent canvas of the sprite's size with `steps(draw)` drawn on it, as
+    `(rows, cols, 4)` uint8 RGBA."""
+    from PIL import Image, ImageDraw
+
+    image = Image.new("RGBA", _SPRITE_SIZE, (0, 0, 0, 0))
+    draw = ImageDraw.Draw(image)
+    for step in steps:
+        step(draw)
+    return np.asarray(image)
 
 
 def sprite_picture() -> np.ndarray:
@@ -361,39 +407,12 @@ def sprite_picture() -> np.ndarray:
     and `sprite_handles()` rigs it; `Renderer.build(rig, sprite_picture())` draws it
     posed.
     """
-    from PIL import Image, ImageDraw
+    def arms(draw):
+        for s, h in zip(_SPRITE_SHOULDERS, _sprite_hands()):
+            _capsule(draw, s, h, _SPRITE_ARM[2], _SHIRT)
+            _ellipse(draw, h, _SPRITE_ARM[2] + 1.0, _SPRITE_ARM[2] + 1.0, _SKIN)
 
-    width, height = _SPRITE_SIZE
-    image = Image.new("RGBA", (width, height), (0, 0, 0, 0))
-    draw = ImageDraw.Draw(image)
-
-    def px(p):  # shape coordinates (y up) -> Pillow's (x, y down), pixel centres
-        return (p[0], height - 1 - p[1])
-
-    def ellipse(centre, rx, ry, colour):
-        (x, y) = px(centre)
-        draw.ellipse([x - rx, y - ry, x + rx, y + ry], fill=colour)
-
-    def capsule(a, b, radius, colour):
-        draw.line([px(a), px(b)], fill=colour, width=round(2 * radius))
-        for p in (a, b):
-            ellipse(p, radius, radius, colour)
-
-    skin, shirt, trousers, shoes = (236, 188, 150, 255), (52, 101, 164, 255), \
-        (60, 60, 70, 255), (120, 70, 30, 255)
-    for s, h in zip(_SPRITE_SHOULDERS, _sprite_hands()):
-        capsule(s, h, _SPRITE_ARM[2], shirt)
-        ellipse(h, _SPRITE_ARM[2] + 1.0, _SPRITE_ARM[2] + 1.0, skin)
-    for hip, ankle in zip(_SPRITE_HIPS, _SPRITE_ANKLES):
-        capsule(hip, ankle, _SPRITE_LEG, trousers)
-    for centre, rx, ry in _SPRITE_FEET:
-        ellipse(centre, rx, ry, shoes)
-    (x0, y0), (x1, y1) = _SPRITE_NECK
-    draw.rectangle([*px((x0, y1)), *px((x1, y0))], fill=skin)
-    centre, rx, ry = _SPRITE_TORSO
-    ellipse(centre, rx, ry, shirt)
-    ellipse(_SPRITE_HEAD[0], _SPRITE_HEAD[1], _SPRITE_HEAD[1], skin)
-    return np.asarray(image)
+    return _drawn(arms, _sprite_body)
 
 
 def sprite() -> Shape:
@@ -433,13 +452,6 @@ _FIGURE_HAND = 11.0  # the separate right hand's radius; its centre is past the 
 _FIGURE_WRIST_IN = 14.0  # the wrist handles sit this far in from the arms' tips
 
 
-def _figure_hands() -> np.ndarray:
-    length, _, _ = _SPRITE_ARM
-    t = np.radians(_FIGURE_ARM_OUT)
-    return np.array([[s[0] + side * length * np.sin(t), s[1] - length * np.cos(t)]
-                     for s, side in zip(_SPRITE_SHOULDERS, (-1.0, 1.0))])
-
-
 def layered_figure() -> list:
     """A figure drawn in layers, bottom first, for `mvcjax.Character.build`: a list of
     four `mvcjax.Layer`s on one 240 x 260 canvas (straight RGBA floats).
@@ -450,59 +462,25 @@ def layered_figure() -> list:
     a disc past the right arm's tip. `layered_figure_handles()` pins it; the right hand
     holds no handle and follows the right arm.
     """
-    from PIL import Image, ImageDraw
-
     from ._image import load_image
     from ._layers import Layer
 
-    width, height = _SPRITE_SIZE
-
-    def px(p):  # shape coordinates (y up) -> Pillow's (x, y down), pixel centres
-        return (p[0], height - 1 - p[1])
-
-    def layer(draw_on):
-        image = Image.new("RGBA", (width, height), (0, 0, 0, 0))
-        draw_on(ImageDraw.Draw(image))
-        return load_image(image)
-
-    def ellipse(draw, centre, rx, ry, colour):
-        (x, y) = px(centre)
-        draw.ellipse([x - rx, y - ry, x + rx, y + ry], fill=colour)
-
-    def capsule(draw, a, b, radius, colour):
-        draw.line([px(a), px(b)], fill=colour, width=round(2 * radius))
-        for p in (a, b):
-            ellipse(draw, p, radius, radius, colour)
-
-    skin, shirt, sleeve, trousers, shoes = (236, 188, 150, 255), (52, 101, 164, 255), \
-        (32, 74, 135, 255), (60, 60, 70, 255), (120, 70, 30, 255)
-    hands, radius = _figure_hands(), _SPRITE_ARM[2]
-
-    def body(draw):
-        for hip, ankle in zip(_SPRITE_HIPS, _SPRITE_ANKLES):
-            capsule(draw, hip, ankle, _SPRITE_LEG, trousers)
-        for centre, rx, ry in _SPRITE_FEET:
-            ellipse(draw, centre, rx, ry, shoes)
-        (x0, y0), (x1, y1) = _SPRITE_NECK
-        draw.rectangle([*px((x0, y1)), *px((x1, y0))], fill=skin)
-        centre, rx, ry = _SPRITE_TORSO
-        ellipse(draw, centre, rx, ry, shirt)
-        ellipse(draw, _SPRITE_HEAD[0], _SPRITE_HEAD[1], _SPRITE_HEAD[1], skin)
+    hands, radius = _sprite_hands(_FIGURE_ARM_OUT), _SPRITE_ARM[2]
 
     def left_arm(draw):
-        capsule(draw, _SPRITE_SHOULDERS[0], hands[0], radius, sleeve)
-        ellipse(draw, hands[0], radius + 1.0, radius + 1.0, skin)
+        _capsule(draw, _SPRITE_SHOULDERS[0], hands[0], radius, _SLEEVE)
+        _ellipse(draw, hands[0], radius + 1.0, radius + 1.0, _SKIN)
 
     def right_arm(draw):
-        capsule(draw, _SPRITE_SHOULDERS[1], hands[1], radius, sleeve)
+        _capsule(draw, _SPRITE_SHOULDERS[1], hands[1], radius, _SLEEVE)
 
     def right_hand(draw):
         d = hands[1] - np.asarray(_SPRITE_SHOULDERS[1])
-        ellipse(draw, hands[1] + 4.0 * d / np.linalg.norm(d), _FIGURE_HAND, _FIGURE_HAND,
-                skin)
+        _ellipse(draw, hands[1] + 4.0 * d / np.linalg.norm(d), _FIGURE_HAND, _FIGURE_HAND,
+                 _SKIN)
 
-    return [Layer(name, layer(draw)) for name, draw in
-            [("body", body), ("left arm", left_arm), ("right arm", right_arm),
+    return [Layer(name, load_image(_drawn(draw))) for name, draw in
+            [("body", _sprite_body), ("left arm", left_arm), ("right arm", right_arm),
              ("right hand", right_hand)]]
 
 
@@ -520,7 +498,7 @@ def layered_figure_handles() -> list:
 
     chest = (_SPRITE_TORSO[0][0], _SPRITE_TORSO[0][1] + 12.0)
     return [chest, *[Bone(s, inward(h, s)) for s, h in zip(_SPRITE_SHOULDERS,
-                                                          _figure_hands())],
+                                                          _sprite_hands(_FIGURE_ARM_OUT))],
             *[tuple(a) for a in _SPRITE_ANKLES]]
 
 
