@@ -59,8 +59,7 @@ def _part_shapes(layers: list[Layer], alpha_threshold, tolerance) -> list[Shape]
                 f"layer {layer.name!r} holds {regions} separate regions of pixels with alpha "
                 f"above {alpha_threshold}; a part is one connected region: split the layer "
                 "into one layer per region (two eyes: two layers), or join the regions.")
-        shapes.append(Shape.from_image(layer.picture, alpha_threshold=alpha_threshold,
-                                       tolerance=tolerance))
+        shapes.append(Shape.from_image(mask, tolerance=tolerance))
     return shapes
 
 
@@ -72,9 +71,17 @@ def _feeds(shapes: list[Shape], points, bones, owner, names) -> list[tuple[list,
     for row, _ in bones:
         in_bone[row:row + 2] = True
     feeds = []
-    covering = [s.polygon.buffer(1e-6 * s.diagonal) for s in shapes]
-    for area in covering:
+    for shape in shapes:
+        area, tol = shape.polygon.buffer(1e-6 * shape.diagonal), 1e-6 * shape.diagonal
         handles, rows = [], []
+
+        def add_point(point, row, tol=tol, handles=handles, rows=rows):
+            # Two handles at one spot (bones meeting at a joint in this part) pin it once.
+            if not any(isinstance(h, tuple) and np.hypot(*(np.subtract(h, point))) <= tol
+                       for h in handles):
+                handles.append(tuple(point))
+                rows.append(row)
+
         for row, bone in bones:
             if area.covers(shapely.LineString([bone.start, bone.end])):
                 handles.append(Bone(bone.start, bone.end, stretch=bone.stretch))
@@ -83,12 +90,10 @@ def _feeds(shapes: list[Shape], points, bones, owner, names) -> list[tuple[list,
             # A part holding one end of the bone is pinned there, where the bone puts it.
             for along, end in ((0.0, bone.start), (1.0, bone.end)):
                 if area.covers(shapely.Point(end)):
-                    handles.append(tuple(end))
-                    rows.append((row, row + 1, along, bone.length, not bone.stretch))
+                    add_point(end, (row, row + 1, along, bone.length, not bone.stretch))
         for row in np.flatnonzero(~in_bone):
             if area.covers(shapely.Point(points[row])):
-                handles.append(tuple(points[row]))
-                rows.append((row, row, 0.0, 0.0, False))
+                add_point(points[row], (row, row, 0.0, 0.0, False))
         feeds.append((handles, rows))
     for row in range(len(points)):
         if not any(r[0] == row or r[1] == row for _, rows in feeds for r in rows):
@@ -130,15 +135,17 @@ def _parents(shapes, feeds, attach, names) -> list[int]:
                     "nothing can move it; put a handle on it, or draw it overlapping the "
                     "part it hangs from.")
             parents[i] = j
-    # Every part must reach a part with handles of its own, without going round a loop.
+    # Parents are solved first: following parents must end, not go round a loop.
     for i in range(count):
         seen, j = [i], i
-        while parents[j] >= 0 and not feeds[j][1]:
+        while parents[j] >= 0:
             j = parents[j]
             if j in seen:
+                loop = ", ".join(repr(names[k]) for k in seen[seen.index(j):])
                 raise ValueError(
-                    f"parts {', '.join(names[k] for k in seen)!r} are attached to each other "
-                    "in a loop and none holds a handle; put a handle on one of them.")
+                    f"parts {loop} follow each other in a loop (attach, or the overlap of "
+                    "parts that hold no handle): attach one of them to a part outside the "
+                    "loop, or put a handle on it.")
             seen.append(j)
     return parents
 
@@ -188,13 +195,9 @@ def _ends(start, end) -> np.ndarray:
 
 
 def _feed_handles(rows: list, rest: np.ndarray, dtype) -> Handles:
-    first, second, along, length, rigid = (np.asarray(c).reshape(-1) for c in zip(*rows)) \
-        if rows else (np.zeros(0),) * 5
-    return Handles(
-        rest=to_device(rest, dtype), first=to_device(first, np.int32),
-        second=to_device(second, np.int32), along=to_device(along, dtype),
-        length=to_device(length, dtype), rigid=to_device(rigid.astype(bool), bool),
-        bones=to_device(np.zeros((0, 2)), np.int32))
+    """`Handles` whose rows follow the character's targets (no bones of their own)."""
+    columns = [np.asarray(c) for c in zip(*rows)] if rows else [np.zeros(0)] * 5
+    return make_handles(rest, [], columns, dtype)
 
 
 class Character(JittableModule):

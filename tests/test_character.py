@@ -267,6 +267,27 @@ def test_bad_layers_and_handles_are_refused_with_the_fix(tmp_path):
         mvcjax.Character.build([a, faint], [left])
     with pytest.raises(ValueError, match="attach names a part 'nose'"):
         mvcjax.Character.build([a, b], [left, right], attach={"nose": 0})
+    with pytest.raises(ValueError, match="'layer 0', 'layer 1' follow each other in a loop"):
+        mvcjax.Character.build([a, b], [left, right], attach={0: 1, 1: 0})
+
+
+def test_bones_meeting_at_a_joint_pin_a_third_part_there_once():
+    # An upper and a lower bone meet at an elbow that a patch (a third part) covers: the
+    # patch holds neither bone, only the joint, which both bones put at one spot.
+    canvas = (64, 96)
+    upper, lower = np.zeros((*canvas, 4), np.float32), np.zeros((*canvas, 4), np.float32)
+    upper[26:38, 8:52] = (1, 0, 0, 1)
+    lower[26:38, 44:88] = (0, 0, 1, 1)
+    patch = _disc((48, 31), 5, canvas)
+    shoulder, elbow, wrist = (12.0, 31.5), (48.0, 31.5), (84.0, 31.5)
+    character = mvcjax.Character.build(
+        [upper, lower, patch], [mvcjax.Bone(shoulder, elbow), mvcjax.Bone(elbow, wrist)])
+    assert character.parts[2].handles.count == 1
+    targets = np.asarray(character.handle_positions).copy()
+    targets[2:] = (48.0, 31.5), (48.0, 67.5)  # the forearm turned up about the elbow
+    parts = character.deform(targets)
+    centre = np.asarray(parts[2]).mean(axis=0)
+    np.testing.assert_allclose(centre, elbow, atol=1.0)  # the patch stays on the elbow
 
 
 def test_order_and_vertices_must_fit_the_parts(character, renderer, wave):
