@@ -485,15 +485,13 @@ class CharacterRenderer(JittableModule):
         textures = [np.pad(np.asarray(p.texture), ((0, 0), (gap, gap), (0, 0)), mode="edge")
                     for p in parts]
         width = textures[0].shape[1]
-        points, faces, offset = [], [], 0
-        for k, p in enumerate(parts):
-            points.append(np.asarray(p.texture_points) + [k * width + gap, 0.0])
-            faces.append(np.asarray(p.faces) + offset)
-            offset += p.rest.shape[0]
+        points = [np.asarray(p.texture_points) + [k * width + gap, 0.0]
+                  for k, p in enumerate(parts)]
         part_of_face = np.repeat(np.arange(len(parts)), [p.faces.shape[0] for p in parts])
         dtype = first.texture.dtype
-        mesh = Renderer.from_arrays(
-            np.concatenate([np.asarray(p.rest) for p in parts]), np.concatenate(faces),
+        joined = character.shape_mesh
+        mesh = Renderer._from_arrays(
+            np.asarray(joined.vertices), np.asarray(joined.faces),
             np.concatenate(points), np.concatenate(textures, axis=1),
             np.asarray(first.window), first.shape, level=to_device(part_of_face, np.int32),
             budget=budget, background=np.asarray(first.background),

@@ -343,17 +343,17 @@ class Renderer(JittableModule):
             level = to_device(_levels(depth[faces].mean(axis=1)), np.int32)
         if alpha not in ("mesh", "picture"):
             raise ValueError(f"alpha must be 'mesh' or 'picture', got {alpha!r}.")
-        return cls.from_arrays(vertices, faces, texture_points, _texture(picture, alpha),
+        return cls._from_arrays(vertices, faces, texture_points, _texture(picture, alpha),
                                window, (rows, cols), level=level, budget=budget,
                                background=background, antialias=antialias,
                                see_through=alpha == "picture", dtype=dtype)
 
     @classmethod
-    def from_arrays(cls, vertices, faces, texture_points, texture, window,
-                    size: tuple[int, int], *, level, budget, background, antialias: bool,
-                    see_through: bool, dtype) -> Renderer:
-        """Not for users (`build` checks and prepares its arguments): the renderer of a
-        mesh whose texture positions and premultiplied texture are given, host arrays."""
+    def _from_arrays(cls, vertices, faces, texture_points, texture, window,
+                     size: tuple[int, int], *, level, budget, background, antialias: bool,
+                     see_through: bool, dtype) -> Renderer:
+        """The renderer of a mesh whose texture positions and premultiplied texture are
+        given as host arrays (`build` checks and prepares them from its arguments)."""
         rows, cols = size
         boundary = on_boundary(faces)
         tile, rest = _tiling(vertices, faces, boundary, window, rows, cols, antialias)
