@@ -360,28 +360,28 @@ def _pixel(p) -> tuple[float, float]:
     return (p[0], _SPRITE_SIZE[1] - 1 - p[1])
 
 
-def _ellipse(draw, centre, rx, ry, colour) -> None:
+def _paint_ellipse(draw, centre, rx, ry, colour) -> None:
     x, y = _pixel(centre)
     draw.ellipse([x - rx, y - ry, x + rx, y + ry], fill=colour)
 
 
-def _capsule(draw, a, b, radius, colour) -> None:
+def _paint_capsule(draw, a, b, radius, colour) -> None:
     draw.line([_pixel(a), _pixel(b)], fill=colour, width=round(2 * radius))
     for p in (a, b):
-        _ellipse(draw, p, radius, radius, colour)
+        _paint_ellipse(draw, p, radius, radius, colour)
 
 
 def _sprite_body(draw) -> None:
     """The sprite's legs, feet, neck, torso and head, drawn in that order."""
     for hip, ankle in zip(_SPRITE_HIPS, _SPRITE_ANKLES):
-        _capsule(draw, hip, ankle, _SPRITE_LEG, _TROUSERS)
+        _paint_capsule(draw, hip, ankle, _SPRITE_LEG, _TROUSERS)
     for centre, rx, ry in _SPRITE_FEET:
-        _ellipse(draw, centre, rx, ry, _SHOES)
+        _paint_ellipse(draw, centre, rx, ry, _SHOES)
     (x0, y0), (x1, y1) = _SPRITE_NECK
     draw.rectangle([*_pixel((x0, y1)), *_pixel((x1, y0))], fill=_SKIN)
     centre, rx, ry = _SPRITE_TORSO
-    _ellipse(draw, centre, rx, ry, _SHIRT)
-    _ellipse(draw, _SPRITE_HEAD[0], _SPRITE_HEAD[1], _SPRITE_HEAD[1], _SKIN)
+    _paint_ellipse(draw, centre, rx, ry, _SHIRT)
+    _paint_ellipse(draw, _SPRITE_HEAD[0], _SPRITE_HEAD[1], _SPRITE_HEAD[1], _SKIN)
 
 
 def _drawn(*steps) -> np.ndarray:
@@ -409,8 +409,8 @@ def sprite_picture() -> np.ndarray:
     """
     def arms(draw):
         for s, h in zip(_SPRITE_SHOULDERS, _sprite_hands()):
-            _capsule(draw, s, h, _SPRITE_ARM[2], _SHIRT)
-            _ellipse(draw, h, _SPRITE_ARM[2] + 1.0, _SPRITE_ARM[2] + 1.0, _SKIN)
+            _paint_capsule(draw, s, h, _SPRITE_ARM[2], _SHIRT)
+            _paint_ellipse(draw, h, _SPRITE_ARM[2] + 1.0, _SPRITE_ARM[2] + 1.0, _SKIN)
 
     return _drawn(arms, _sprite_body)
 
@@ -468,15 +468,15 @@ def layered_figure() -> list:
     hands, radius = _sprite_hands(_FIGURE_ARM_OUT), _SPRITE_ARM[2]
 
     def left_arm(draw):
-        _capsule(draw, _SPRITE_SHOULDERS[0], hands[0], radius, _SLEEVE)
-        _ellipse(draw, hands[0], radius + 1.0, radius + 1.0, _SKIN)
+        _paint_capsule(draw, _SPRITE_SHOULDERS[0], hands[0], radius, _SLEEVE)
+        _paint_ellipse(draw, hands[0], radius + 1.0, radius + 1.0, _SKIN)
 
     def right_arm(draw):
-        _capsule(draw, _SPRITE_SHOULDERS[1], hands[1], radius, _SLEEVE)
+        _paint_capsule(draw, _SPRITE_SHOULDERS[1], hands[1], radius, _SLEEVE)
 
     def right_hand(draw):
         d = hands[1] - np.asarray(_SPRITE_SHOULDERS[1])
-        _ellipse(draw, hands[1] + 4.0 * d / np.linalg.norm(d), _FIGURE_HAND, _FIGURE_HAND,
+        _paint_ellipse(draw, hands[1] + 4.0 * d / np.linalg.norm(d), _FIGURE_HAND, _FIGURE_HAND,
                  _SKIN)
 
     return [Layer(name, load_image(_drawn(draw))) for name, draw in
