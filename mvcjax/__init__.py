@@ -35,6 +35,7 @@ from ._metrics import (
 from ._render import (
     Renderer as Renderer,
     checkerboard as checkerboard,
+    core_depth as core_depth,
     depth_from_handles as depth_from_handles,
     fit_window as fit_window,
     render as render,

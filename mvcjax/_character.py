@@ -29,7 +29,7 @@ from ._checks import check_solver, check_targets, whole_number
 from ._handles import Bone, Handles, make_handles, parse_handles, pin
 from ._layers import Layer, load_layers
 from ._module import JittableModule
-from ._render import Renderer
+from ._render import Renderer, _key_layout
 from ._rig import ControlMesh, Rig, ShapeMesh, _compiled_when_eager, _thickness
 from ._shape import Shape
 from ._skinning import Skinning
@@ -488,12 +488,22 @@ class CharacterRenderer(JittableModule):
         points = [np.asarray(p.texture_points) + [k * width + gap, 0.0]
                   for k, p in enumerate(parts)]
         part_of_face = np.repeat(np.arange(len(parts)), [p.faces.shape[0] for p in parts])
+        # Each part's triangles in its own renderer's draw order (deepest last), all on
+        # the part's level: within a part, the triangle covering a pixel most draws it,
+        # so that the part's outline stays one antialiased edge, and where the part folds
+        # over itself the deeper triangle is on top.
+        if len(parts) > _key_layout(len(part_of_face))[1]:
+            raise ValueError(f"A character of {len(parts)} parts and {len(part_of_face)} "
+                             "triangles has more parts than draw levels: merge layers, or "
+                             "build it with a coarser shape_spacing.")
+        offsets = np.cumsum([0] + [p.rest.shape[0] for p in parts])[:-1]
+        faces = np.concatenate([np.asarray(p.faces) + at for p, at in zip(parts, offsets)])
         dtype = first.texture.dtype
-        joined = character.shape_mesh
         mesh = Renderer._from_arrays(
-            np.asarray(joined.vertices), np.asarray(joined.faces),
+            np.asarray(character.shape_mesh.vertices), faces,
             np.concatenate(points), np.concatenate(textures, axis=1),
-            np.asarray(first.window), first.shape, level=to_device(part_of_face, np.int32),
+            np.asarray(first.window), first.shape,
+            level=to_device(part_of_face, np.int32),
             budget=budget, background=np.asarray(first.background),
             antialias=first.antialias, see_through=first.see_through, dtype=dtype)
         return cls(mesh=mesh, part_of_face=to_device(part_of_face, np.int32),

@@ -44,11 +44,9 @@ _FRINGE = 0.5
 # Tiles drawn per step of the raster's loop, and pixels shaded per step of the shading's.
 _CHUNK = 2048
 _SHADE_CHUNK = 8192
-# Coverage steps in a candidate's key, and the draw levels of the default order.
+# Coverage steps in a candidate's key, and the bands of depth of the draw order.
 _COVERAGE_BITS = 6
-_MOVED_LEVELS = 16
-# Moves below this fraction of the rest mesh's size do not raise a triangle's draw level.
-_STILL = 1e-3
+_DEPTH_LEVELS = 16
 # Triangles offer their candidate pixels in square tiles of one of these sides: the one
 # with the fewest candidates for the rest mesh at the picture's resolution.
 _TILES = (2, 4, 8, 16)
@@ -172,7 +170,9 @@ def check_drawn_mesh(renderer: Renderer, vertices, faces) -> None:
     if any(isinstance(a, jax.core.Tracer) for a in (renderer.rest, renderer.faces, vertices)):
         return
     rest = np.asarray(renderer.rest, np.float64)
-    same = (np.array_equal(np.asarray(renderer.faces), np.asarray(faces))
+    # The renderer keeps the triangles in its draw order.
+    ours, theirs = np.asarray(renderer.faces), np.asarray(faces)
+    same = (np.array_equal(ours[np.lexsort(ours.T)], theirs[np.lexsort(theirs.T)])
             and np.allclose(rest, np.asarray(vertices, np.float64), rtol=1e-5,
                             atol=1e-5 * float(np.ptp(rest))))
     if not same:
@@ -198,7 +198,7 @@ class Renderer(JittableModule):
     texture values) never recompile it; the picture's size and the budget do.
 
     Attributes:
-        faces: `(f, 3)` triangles.
+        faces: `(f, 3)` triangles, in draw order (deepest last, `draw_levels`).
         boundary: `(f, 3)` whether edge ab, bc, ca of each triangle is on the mesh's boundary.
         texture_points: `(n, 2)` each vertex's rest position in the texture, as fractional
             `(col, row)` pixel positions.
@@ -206,8 +206,8 @@ class Renderer(JittableModule):
         window: `(4,)` the plane's rectangle `(xmin, ymin, xmax, ymax)` the picture shows.
         background: `(4,)` straight RGBA drawn where no triangle is.
         rest: `(n, 2)` the rest vertices.
-        level: `(f,)` each triangle's draw level (higher on top, ties: the later triangle),
-            or None to put the triangles that moved further from rest on top, pose by pose.
+        level: `(f,)` each triangle's draw level (higher on top; within a level, the
+            triangle covering the pixel most, then the later triangle).
         shape: `(rows, cols)` of the pictures drawn (static).
         budget: the most pixel tiles the triangles of one picture may cover (static).
         tile: the side of those tiles, in pixels (static).
@@ -223,7 +223,7 @@ class Renderer(JittableModule):
     window: Float[Array, " 4"]
     background: Float[Array, " 4"]
     rest: Float[Array, "n 2"]
-    level: Int[Array, " f"] | None
+    level: Int[Array, " f"]
     shape: tuple[int, int] = eqx.field(static=True)
     budget: int = eqx.field(static=True)
     tile: int = eqx.field(static=True)
@@ -274,10 +274,11 @@ class Renderer(JittableModule):
                 transparent by default.
             depth: draw order where parts overlap: `(n,)` a depth per rest vertex, larger
                 on top (a triangle's depth is its vertices' mean; `depth_from_handles`
-                spreads a depth per handle over a rig's mesh). Default: in each pose, the
-                triangles that moved further from rest lie on top (in 16 steps of the
-                largest move; moves under a thousandth of the mesh's size count as
-                none), so that a dragged part passes over the rest of the shape.
+                spreads a depth per handle over a rig's mesh). Default `core_depth`: the
+                distance along the rest mesh from the shape's core (the point deepest
+                inside its outline), so that limbs, a tail or a head lie over the body
+                they grow from. It is decided once, from the rest mesh: the same in every
+                pose, so that an animation's overlaps never flicker.
             antialias: smooth (and differentiable) boundary edges; False draws hard edges
                 for less work (no coverage to compute along the boundary).
             alpha: where the drawn shape's edge comes from. `"mesh"` (default): the mesh
@@ -334,18 +335,13 @@ class Renderer(JittableModule):
         if image is not None:
             _check_cover(picture, texture_points, np.asarray(vertices, np.float64),
                          np.asarray(faces))
-        level = None
-        if depth is not None:
-            depth = np.asarray(depth, np.float64)
-            if depth.shape != (len(vertices),) or not np.all(np.isfinite(depth)):
-                raise ValueError(f"depth must be {len(vertices)} finite numbers, one per rest "
-                                 f"vertex of the mesh, got shape {depth.shape}.")
-            level = to_device(_levels(depth[faces].mean(axis=1)), np.int32)
+        order, level = draw_levels(depth, vertices, faces)
+        faces = faces[order]
         if alpha not in ("mesh", "picture"):
             raise ValueError(f"alpha must be 'mesh' or 'picture', got {alpha!r}.")
         return cls._from_arrays(vertices, faces, texture_points, _texture(picture, alpha),
-                               window, (rows, cols), level=level, budget=budget,
-                               background=background, antialias=antialias,
+                               window, (rows, cols), level=to_device(level, np.int32),
+                               budget=budget, background=background, antialias=antialias,
                                see_through=alpha == "picture", dtype=dtype)
 
     @classmethod
@@ -616,19 +612,79 @@ def _fill(fill, vertices):
     return np.append(colour, 1.0)[:4].reshape(1, 1, 4).astype(np.float32), window
 
 
-def _levels(values: np.ndarray) -> np.ndarray:
-    """Integer draw levels, in the order of `values` (equal values share a level)."""
-    distinct, inverse = np.unique(values, return_inverse=True)
-    top = _key_layout(len(values))[1]
-    return (inverse.astype(np.int64) * top // max(len(distinct), 1)).astype(np.int32)
+def draw_levels(depth, vertices: np.ndarray, faces: np.ndarray,
+                levels: int = _DEPTH_LEVELS) -> tuple[np.ndarray, np.ndarray]:
+    """The triangles in draw order and their draw levels, from a depth per vertex
+    (`depth=` of `Renderer.build`; None for `core_depth`): `(order, level)`, `order` the
+    triangles sorted by depth (a triangle's depth is its vertices' mean) and `level` each
+    sorted triangle's level, in at most `levels` bands of depth.
+
+    Within a band, the triangle covering a pixel most is drawn, so that neighbours along
+    the outline antialias it as one edge; across bands (and between triangles covering
+    the pixel wholly, the later in `order`) the deeper one is on top."""
+    if depth is None:
+        depth = core_depth(vertices, faces)
+    depth = np.asarray(depth, np.float64)
+    if depth.shape != (len(vertices),) or not np.all(np.isfinite(depth)):
+        raise ValueError(f"depth must be {len(vertices)} finite numbers, one per rest "
+                         f"vertex of the mesh, got shape {depth.shape}.")
+    levels = min(levels, _key_layout(len(faces))[1])
+    face_depth = depth[faces].mean(axis=1)
+    order = np.argsort(face_depth, kind="stable")
+    # Ranks, not values: equal depths share a band, and no band is left empty.
+    distinct, inverse = np.unique(face_depth[order], return_inverse=True)
+    level = inverse.astype(np.int64) * levels // max(len(distinct), 1)
+    return order, level.astype(np.int32)
+
+
+def _edge_graph(vertices, faces):
+    """The mesh's edges as a sparse graph weighted by their rest lengths."""
+    import scipy.sparse
+
+    from ._topology import edges
+
+    vertices = np.asarray(vertices, np.float64)
+    n = len(vertices)
+    pairs = edges(np.asarray(faces))
+    length = np.hypot(*(vertices[pairs[:, 0]] - vertices[pairs[:, 1]]).T)
+    return scipy.sparse.coo_matrix((length, (pairs[:, 0], pairs[:, 1])), shape=(n, n)).tocsr()
+
+
+def core_depth(vertices: Float[ArrayLike, "n 2"],
+               faces: Int[ArrayLike, "f 3"]) -> Float[np.ndarray, " n"]:
+    """The default draw depth of a mesh's vertices: the distance along the rest mesh from
+    the shape's core, the vertex farthest from the outline (one per piece of a mesh in
+    several pieces). Parts farther out along the shape (limbs, a tail, a head) are drawn
+    over those nearer its middle, whatever the pose.
+
+    Args:
+        vertices: `(n, 2)` rest vertices.
+        faces: `(f, 3)` triangles.
+    """
+    import scipy.sparse.csgraph
+
+    from ._topology import boundary_edges
+
+    faces = np.asarray(faces)
+    graph = _edge_graph(vertices, faces)
+    inward = scipy.sparse.csgraph.dijkstra(graph, directed=False, min_only=True,
+                                           indices=np.unique(boundary_edges(faces)))
+    _, piece = scipy.sparse.csgraph.connected_components(graph, directed=False)
+    # The deepest vertex of each piece (the first of equals), by a sort on (piece, depth).
+    by_piece = np.lexsort((-inward, piece))
+    cores = by_piece[np.r_[0, np.flatnonzero(np.diff(piece[by_piece])) + 1]]
+    depth = scipy.sparse.csgraph.dijkstra(graph, directed=False, min_only=True, indices=cores)
+    # Vertices in no triangle are in no piece with a boundary; they are never drawn.
+    return np.where(np.isfinite(depth), depth, 0.0)
 
 
 def _key_layout(faces: int) -> tuple[int, int]:
     """A candidate's key packs, from the high bits down, the triangle's draw level, its
     coverage of the pixel (in `_COVERAGE_BITS` bits) and the triangle, in an int32: the
-    triangle's bits, and how many levels fit above."""
+    triangle's bits, and how many levels fit above (less one: the raster's second layer
+    raises candidates a level)."""
     face_bits = max(int(faces - 1).bit_length(), 1)
-    return face_bits, 2 ** (31 - face_bits - _COVERAGE_BITS)
+    return face_bits, 2 ** (31 - face_bits - _COVERAGE_BITS) - 1
 
 
 def _tiles(tri, fringe, rows: int, cols: int, tile: int):
@@ -670,24 +726,6 @@ def _fringes(boundary, antialias: bool):
     return jnp.full(boundary.shape, _EPS)
 
 
-def _levels_of(renderer: Renderer, vertices):
-    """Each triangle's draw level: the renderer's, or by default from how far the triangle
-    moved from rest, in a few coarse steps (neighbours then share a level, and their
-    coverage of a pixel decides between them, as within one level)."""
-    if renderer.level is not None:
-        return renderer.level
-    vertices = jax.lax.stop_gradient(vertices)
-    moved = jnp.sqrt(jnp.sum((vertices - renderer.rest) ** 2, axis=-1)[renderer.faces].sum(axis=1))
-    top = min(_MOVED_LEVELS, _key_layout(renderer.faces.shape[0])[1]) - 1
-    # Steps of the largest move, but never finer than a thousandth of the rest mesh's
-    # size: otherwise a pose at rest to rounding (rig.deform of the rest targets) would
-    # be ordered by its rounding errors, which differ from one program to another.
-    extent = jnp.linalg.norm(jnp.max(renderer.rest, axis=0) - jnp.min(renderer.rest, axis=0))
-    unit = jnp.maximum(jnp.maximum(moved.max(), _STILL * 3 * extent),  # moved sums three
-                       jnp.finfo(moved.dtype).tiny)
-    return jnp.clip(jnp.round(moved * (top / unit)), 0, top).astype(jnp.int32)
-
-
 def _face_table(tri, texture_tri, boundary):
     """Per triangle, what shading a pixel needs, relative to the triangle's first vertex
     `a` (an affine map built from absolute pixel positions would cancel large terms, and
@@ -716,7 +754,7 @@ def _face_table(tri, texture_tri, boundary):
                             edges.reshape(-1, 9)], axis=1)
 
 
-def _raster(renderer: Renderer, tri, vertices, rows: int, cols: int):
+def _raster(renderer: Renderer, tri, rows: int, cols: int):
     """Which triangle each pixel shows: the key (`(level, coverage, triangle)`, -1 for
     none) of the top candidate of each pixel, and of the top candidate that covers the
     pixel's centre and all of the pixel (the layer beneath a partly covering one).
@@ -739,7 +777,7 @@ def _raster(renderer: Renderer, tri, vertices, rows: int, cols: int):
     normal, offset = _edge_distances(tri)
     boundary = renderer.boundary & renderer.antialias
     face_bits, _ = _key_layout(count)
-    level = _levels_of(renderer, vertices)
+    level = renderer.level
     far = jnp.asarray(1e6, tri.dtype)
     # Everything a tile needs from its triangle in one row, gathered once per tile (a
     # row costs about what one of its numbers does alone).
@@ -783,24 +821,39 @@ def _raster(renderer: Renderer, tri, vertices, rows: int, cols: int):
         steps = jnp.round(coverage * (2**_COVERAGE_BITS - 1)).astype(jnp.int32)
         key = ((level[face] * 2**_COVERAGE_BITS)[:, None, None] + steps) * 2**face_bits \
             + face[:, None, None]
-        front, back = layers
+        front, beneath = layers
         front = front.at[pixel].max(jnp.where(inside, key, -1), mode="drop")
         if renderer.antialias:
-            # The top candidate covering the pixel's centre and the whole pixel: under a
-            # partly covering front triangle (its edge over another part, or over a fold
-            # of its own part) it shows. A partial front never is one, even where it
-            # covers the centre itself, so that what lies beneath shows there too.
+            # The second layer: the top candidate covering the pixel's centre and the
+            # whole pixel, which shows under a partly covering front triangle (its edge
+            # over another part, or over a fold of its own part); a partial front never
+            # is one, even where it covers the centre, so that what lies beneath shows
+            # there too. Where no candidate covers the whole pixel, the one covering it
+            # most whatever its level, which draws the outline there. Whole candidates
+            # rank one level up, above every partial one.
             whole = solid & (steps == 2**_COVERAGE_BITS - 1)
-            back = back.at[pixel].max(jnp.where(whole, key, -1), mode="drop")
-        return front, back
+            plain = steps * 2**face_bits + face[:, None, None]
+            second = jnp.where(whole, key + 2**(_COVERAGE_BITS + face_bits),
+                               jnp.where(inside, plain, -1))
+            beneath = beneath.at[pixel].max(second, mode="drop")
+        return front, beneath
 
     empty = jnp.full(pixels + 1, -1, jnp.int32)
     chunks = (total + _CHUNK - 1) // _CHUNK
-    front, back = jax.lax.fori_loop(0, chunks, chunk, (empty, empty))
+    front, beneath = jax.lax.fori_loop(0, chunks, chunk, (empty, empty))
     if not renderer.antialias:
         return face_bits, [front[:-1]]
-    # Where the front triangle covers the whole pixel, nothing shows beneath it.
-    return face_bits, [front[:-1], jnp.where(back == front, -1, back)[:-1]]
+    up = 2**(_COVERAGE_BITS + face_bits)
+    back = jnp.where(beneath >= up, beneath - up, -1)
+    # Where the front triangle covers the whole pixel, nothing shows beneath it. Where it
+    # covers part of the pixel and nothing lies wholly beneath, the pixel is on the
+    # outline: the triangle covering most of it draws it, as if all were one level (two
+    # neighbours of different levels along the outline then draw one edge).
+    coverage = 2**_COVERAGE_BITS - 1
+    partial = jnp.bitwise_and(front >> face_bits, coverage) < coverage
+    front = jnp.where(partial & (back < 0), beneath, front)
+    back = jnp.where(back == front, -1, back)
+    return face_bits, [front[:-1], back[:-1]]
 
 
 @eqx.filter_jit
@@ -811,8 +864,7 @@ def _draw(renderer: Renderer, vertices, window):
     tri = points[faces]
     # Which triangle a pixel shows is decided without gradients; they flow through the
     # shading (texture position and edge coverage) below.
-    face_bits, layers = _raster(renderer, jax.lax.stop_gradient(tri),
-                                jax.lax.stop_gradient(vertices), rows, cols)
+    face_bits, layers = _raster(renderer, jax.lax.stop_gradient(tri), rows, cols)
     table = materialise(_face_table(tri, renderer.texture_points[faces], renderer.boundary))
     pixels = rows * cols
     colour = jnp.broadcast_to(_premultiply(renderer.background), (pixels, 4))
@@ -921,23 +973,17 @@ def depth_from_handles(rig: Any, depths: Any) -> Float[np.ndarray, " n"]:
             start and end; a bone's pinned points take depths between the two). Larger
             depths are drawn on top.
     """
-    import scipy.sparse
     import scipy.sparse.csgraph
-
-    from ._topology import edges
 
     depths = np.asarray(depths, np.float64)
     count = rig.handles.count
     if depths.shape != (count,) or not np.all(np.isfinite(depths)):
         raise ValueError(f"depths must be {count} finite numbers, one per row of the targets "
                          f"(a point handle has one, a bone two), got shape {depths.shape}.")
-    vertices = np.asarray(rig.shape_mesh.vertices, np.float64)
-    pairs = edges(np.asarray(rig.shape_mesh.faces))
-    length = np.hypot(*(vertices[pairs[:, 0]] - vertices[pairs[:, 1]]).T)
-    n = len(vertices)
-    graph = scipy.sparse.coo_matrix((length, (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    n = rig.shape_mesh.vertices.shape[0]
+    graph = _edge_graph(rig.shape_mesh.vertices, rig.shape_mesh.faces)
     pinned = np.asarray(rig.shape_mesh.handles)
-    _, _, nearest = scipy.sparse.csgraph.dijkstra(graph.tocsr(), directed=False,
+    _, _, nearest = scipy.sparse.csgraph.dijkstra(graph, directed=False,
                                                   indices=pinned, min_only=True,
                                                   return_predecessors=True)
     handles = rig.handles

@@ -255,16 +255,14 @@ plot_fit(silhouette, found_mask, mask, np.abs(found_mask - mask), "silhouette fi
 # The derivative of the sharp and of a blurred silhouette loss along a random direction
 # of the targets, by reverse mode (`jax.grad`) and by central finite differences, in
 # float64 (a rig and a renderer built inside `jax.enable_x64`), halfway between rest and
-# the truth, where many pixels are partly covered. The renderer gets a fixed draw order
-# (`depth=`): by default, triangles that moved further are drawn on top, an order that
-# changes in steps with the pose. The picture is smooth in the targets except where a
-# pixel changes the triangle it shows, so the finite differences take a small step.
+# the truth, where many pixels are partly covered. The picture is smooth in the targets
+# except where a pixel changes the triangle it shows, so the finite differences take a
+# small step.
 
 # %%
 with jax.enable_x64(True):
     rig64 = mvcjax.Rig.build(shape, datasets.horse_handles(), dtype=jnp.float64)
-    renderer64 = mvcjax.Renderer.build(rig64, size=size, window=window,
-                                       depth=np.zeros(len(rig64.shape_mesh.vertices)))
+    renderer64 = mvcjax.Renderer.build(rig64, size=size, window=window)
     mask64 = jnp.asarray(mask, jnp.float64)
     at = 0.5 * (rig64.handle_positions + jnp.asarray(true_targets, jnp.float64))
     direction = jax.random.normal(jax.random.key(0), at.shape, at.dtype)

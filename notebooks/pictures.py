@@ -252,10 +252,12 @@ plt.show()
 # %% [markdown]
 # ## Draw order
 # When a part swings over another, two triangles cover the same pixels. By default the
-# triangles that moved further from rest lie on top: the arm passes in front of the
-# body. `depth=` gives an order of one's own instead, a number per rest vertex (larger
-# on top), which `depth_from_handles` spreads from a number per handle: here the arms
-# are at depth 0 and the rest of the body at 1, so that the arm passes behind it.
+# order is decided once, from the rest mesh (`core_depth`): what lies farther from the
+# shape's core along the shape is on top, so the arm passes in front of the body, and
+# the order is the same in every frame. `depth=` gives an order of one's own instead, a
+# number per rest vertex (larger on top), which `depth_from_handles` spreads from a
+# number per handle: here the arms are at depth 0 and the rest of the body at 1, so
+# that the arm passes behind it.
 #
 # The arm turns 90 degrees. Much further the solvers fold the armpit over onto itself:
 # the energy keeps lengths and shapes but has no term against mirrored triangles (the
@@ -281,7 +283,7 @@ plot.plot_mesh(crossed, faces[~on_arm], axes[0], color="0.6")
 plot.plot_mesh(crossed, faces[on_arm], axes[0], color="tab:red")
 axes[0].set_title("the arms' triangles in red")
 axes[1].imshow(renderer(crossed), extent=extent)
-axes[1].set_title("default: what moved further is on top")
+axes[1].set_title("default: farther from the core on top")
 axes[2].imshow(behind(crossed), extent=extent)
 axes[2].set_title("depth=: the arm behind the body")
 for ax in axes:

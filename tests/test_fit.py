@@ -129,11 +129,7 @@ def test_fit_recovers_the_pose_in_colour_and_from_the_silhouette_in_float64(rig6
 
 @pytest.mark.float64
 def test_silhouette_loss_gradient_matches_finite_differences(rig64):
-    # A fixed draw order: the default one follows how far triangles moved, which the
-    # finite differences' steps change.
-    depth = np.zeros(rig64.shape_mesh.vertices.shape[0])
-    renderer = mvcjax.Renderer.build(rig64, size=SIZE, window=scene(rig64)[0].window,
-                                     depth=depth)
+    renderer = mvcjax.Renderer.build(rig64, size=SIZE, window=scene(rig64)[0].window)
     truth = true_targets(rig64)
     mask = renderer(rig64.deform(truth))[..., 3]
     # Halfway between rest and the truth, where many edge pixels are partly covered.

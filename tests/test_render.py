@@ -6,9 +6,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from skimage import data, morphology, transform
+from skimage import data, draw, morphology, transform
 
 import mvcjax
+from mvcjax import datasets
 
 
 @pytest.fixture(scope="module")
@@ -65,16 +66,92 @@ def test_rest_pose_draws_the_picture_back(renderer, rig, picture):
     assert alpha_error[~morphology.dilation(picture[..., 3] > 0.5, morphology.disk(2))].max() == 0
 
 
-def test_a_pose_at_rest_to_rounding_draws_as_the_rest_pose(renderer, rig):
-    # The default draw order follows how far triangles moved: moves of rounding size (a
-    # solve of the rest targets) must not reorder the triangles along shared edges.
-    # (Premultiplied: where coverage is 0 to rounding, the straight colour is anything.)
-    noise = np.random.default_rng(0).normal(scale=1e-5, size=rig.shape_mesh.vertices.shape)
-    rest = premultiplied(renderer(rig.shape_mesh.vertices))
-    for pose in [rig.shape_mesh.vertices + noise, rig.deform(rig.handle_positions)]:
-        # A reordering would change whole pixels along shared edges; the solve's own
-        # rounding moves the outline's coverage by a little more than a pixel value's.
+def test_the_default_draw_order_is_decided_at_rest(renderer, rig):
+    # The core's depth: fixed per triangle, whatever the pose, so that no pose (nor a
+    # pose at rest to rounding) can reorder the triangles.
+    vertices = np.asarray(rig.shape_mesh.vertices)
+    faces = np.asarray(rig.shape_mesh.faces)
+    depth = mvcjax.core_depth(vertices, faces)
+    # Deepest inside the outline is the core, at depth 0; the farthest are the limbs' ends.
+    assert depth.min() == 0 and depth.max() > 0.5 * np.ptp(vertices, axis=0).max()
+    # The renderer keeps the triangles deepest last, in bands of depth.
+    drawn = np.asarray(renderer.faces)
+    assert sorted(map(tuple, drawn)) == sorted(map(tuple, faces))
+    assert np.all(np.diff(depth[drawn].mean(axis=1)) >= 0)
+    level = np.asarray(renderer.level)
+    assert np.all(np.diff(level) >= 0) and level.max() == 15
+    noise = np.random.default_rng(0).normal(scale=1e-5, size=vertices.shape)
+    rest = premultiplied(renderer(vertices))
+    for pose in [vertices + noise, rig.deform(rig.handle_positions)]:
         np.testing.assert_allclose(premultiplied(renderer(pose)), rest, atol=10 * ROUNDING)
+
+
+def test_the_outline_is_one_edge_across_the_draw_levels(rig, picture):
+    # Neighbours along the outline in different bands of depth draw one antialiased edge:
+    # the picture equals the one drawn with every triangle on one level, in any pose.
+    flat = np.zeros(rig.shape_mesh.vertices.shape[0])
+    one_level = mvcjax.Renderer.build(rig, picture, depth=flat)
+    banded = mvcjax.Renderer.build(rig, picture)
+    assert len(np.unique(np.asarray(banded.level))) == 16
+    dragged = rig.handle_positions.at[0].add(jnp.array([6.0, -4.0]))
+    for pose in [rig.shape_mesh.vertices, rig.deform(dragged)]:
+        np.testing.assert_allclose(premultiplied(banded(pose)), premultiplied(one_level(pose)),
+                                   atol=0.5 / 2**6)  # ties of quantised coverage
+
+
+def test_core_depth_is_the_same_at_any_place_and_scale(rig):
+    vertices = np.asarray(rig.shape_mesh.vertices, np.float64)
+    faces = np.asarray(rig.shape_mesh.faces)
+    depth = mvcjax.core_depth(vertices, faces)
+    np.testing.assert_allclose(mvcjax.core_depth(vertices * 1e-3 + 500.0, faces) * 1e3,
+                               depth, rtol=1e-6, atol=1e-6 * depth.max())
+    # Two pieces each have their own core.
+    two = mvcjax.core_depth(np.concatenate([vertices, vertices + 1e4]),
+                            np.concatenate([faces, faces + len(vertices)]))
+    np.testing.assert_allclose(two, np.concatenate([depth, depth]))
+
+
+def test_an_arm_swung_across_its_own_body_stays_in_front_in_every_frame():
+    # One silhouette: the sprite's arm turned across its chest and back. Wherever the arm
+    # alone would cover a pixel wholly, in this frame and the last, the arm shows in
+    # both: no part of the body flickers over it, and no patch stays over the armpit.
+    shape, picture = datasets.sprite(), datasets.sprite_picture()
+    rig = mvcjax.Rig.build(shape, datasets.sprite_handles())
+    rest = np.asarray(rig.handle_positions, np.float64)
+    frames = 16
+    targets = np.repeat(rest[None], frames, 0)
+    for k, turn in enumerate(np.radians(-110) * np.sin(np.linspace(0, np.pi, frames))):
+        c, s = np.cos(turn), np.sin(turn)
+        targets[k, 4] = rest[3] + np.array([[c, -s], [s, c]]) @ (rest[4] - rest[3])
+    poses = np.asarray(mvcjax.deform_frames(rig, targets))
+    vertices = np.asarray(rig.shape_mesh.vertices, np.float64)
+    faces = np.asarray(rig.shape_mesh.faces)
+    # The arm: triangles along the shoulder-to-hand bone beyond its first third. The
+    # picture is painted blue, the arm red, so that the picture says which part shows.
+    start, end = rest[3], rest[4]
+    centre = vertices[faces].mean(axis=1)
+    along = np.clip((centre - start) @ (end - start) / np.sum((end - start) ** 2), 0, 1)
+    arm = (np.linalg.norm(start + along[:, None] * (end - start) - centre, axis=1) < 12) \
+        & (along > 0.3)
+    rows, cols = picture.shape[:2]
+    painted = np.zeros((rows, cols, 4))
+    painted[..., 2] = 1.0
+    painted[..., 3] = np.asarray(picture)[..., 3] / 255.0
+    for triangle in vertices[faces[arm]]:
+        rr, cc = draw.polygon(rows - 1 - triangle[:, 1], triangle[:, 0], (rows, cols))
+        painted[rr, cc, :3] = (1.0, 0.0, 0.0)
+    window = (-0.5, -0.5, cols - 0.5, rows - 0.5)
+    arm_alone = mvcjax.Renderer.build((vertices, faces[arm]), fill=(1.0, 0.0, 0.0),
+                                      window=window, size=(rows, cols))
+    covered = np.stack([np.asarray(arm_alone(p))[..., 3] > 0.99 for p in poses])
+    shown = mvcjax.Renderer.build(rig, painted).frames(poses)
+    red = shown[..., 0].astype(int) > shown[..., 2]
+    assert covered.sum() > 1000  # the arm crosses the body
+    both = covered[1:] & covered[:-1]
+    switched = both & (red[1:] != red[:-1])
+    # A handful of pixels where the arm's first third (painted blue) meets the rest.
+    assert switched.sum() <= 8, switched.sum()
+    assert np.sum(covered & ~red) <= 8
 
 
 def test_whole_pixel_translation_shifts_the_picture_exactly(renderer, rig):
@@ -90,11 +167,7 @@ def test_quarter_turn_rotates_the_picture(rig, picture):
     square = max(rows, cols)
     window = (-0.5, -0.5, square - 0.5, square - 0.5)
     vertices = rig.shape_mesh.vertices
-    # A fixed draw order: by default the order follows how far triangles moved, which
-    # differs between the poses, and at a pixel two boundary triangles both reach, the
-    # edge's coverage is judged by the one on top.
-    r = mvcjax.Renderer.build(rig, picture, window=window, size=(square, square),
-                              depth=np.zeros(len(vertices)))
+    r = mvcjax.Renderer.build(rig, picture, window=window, size=(square, square))
     centre = (square - 1) / 2
     # (x, y) -> (centre - (y - centre), x): a quarter turn counter-clockwise.
     turned = jnp.stack([2 * centre - vertices[:, 1], vertices[:, 0]], axis=1)
@@ -169,9 +242,7 @@ def test_vmap_draws_frames_in_turn_as_the_plain_vmap_would_with_gradients(render
 @pytest.mark.float64
 def test_gradients_match_finite_differences_inside_and_across_the_edge(rig64, picture):
     rig = rig64
-    # A fixed draw order: the default one follows how far triangles moved, which the
-    # finite differences' steps change.
-    r = mvcjax.Renderer.build(rig, picture, depth=np.zeros(rig.shape_mesh.vertices.shape[0]))
+    r = mvcjax.Renderer.build(rig, picture)
     vertices = rig.shape_mesh.vertices + 0.3
     rest = np.asarray(r(vertices))
     alpha = rest[..., 3]
