@@ -409,6 +409,21 @@ class Table:
         return f"<!-- {self.name}-table:end -->"
 
 
+def live_table(data: dict, source: str) -> str:
+    """`benchmarks/live.py`: interact dragged with a real mouse, in a browser and a window."""
+    rows = [[
+        {"browser": "JupyterLab in Chromium (ipympl)", "window": "Tk window (Xvfb)"}[r["where"]],
+        "textured" if r["textured"] else "filled", f"{r['shape_vertices']:,}",
+        f"{r['moves']} every {r['step_s'] * 1e3:.0f} ms", str(r["updates"]),
+        f"{r['drag_s']:.2f} s", f"{r['updates_per_s']:.1f}", _ms(r["update_ms"]),
+        (f"{r['browser_pictures']} ({r['browser_pictures_per_s']:.1f} a second)"
+         if r["where"] == "browser" else "-"),
+    ] for r in data["rows"]]
+    head = ["where", "drawn", "shape vertices", "mouse moves", "updates", "drag",
+            "updates a second", "median update", "pictures the browser drew"]
+    return "\n".join([_measured_on(data, source, "a real mouse"), "", *_table(head, rows)])
+
+
 def _results(name: str) -> str:
     return f"{RESULTS}/{name}-cpu-2core.json"
 
@@ -424,6 +439,7 @@ TABLES = [
     Table(BENCHMARKS, "many-rigs", _results("many_rigs"), many_rigs_table),
     Table(BENCHMARKS, "dataset", _results("dataset"), dataset_table),
     Table(BENCHMARKS, "interact", _results("interact"), interact_table),
+    Table(BENCHMARKS, "live", _results("live"), live_table),
     Table(BENCHMARKS, "render", _results("render"), render_table),
     Table(BENCHMARKS, "render-peers", _results("render"), render_peers_table),
     Table(BENCHMARKS, "render-layers", _results("render"), render_layers_table),

@@ -1,0 +1,53 @@
+"""`mvcjax.interact` dragged with a real mouse: in JupyterLab in Chromium (Playwright,
+ipympl) and in a Tk window on a virtual X display (Xvfb, xdotool), as
+`benchmarks/live.py` measures it. Skipped, saying what to install, where Chromium or Xvfb
+is missing."""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import live
+
+
+def check_dragged(row: dict, moves: int) -> None:
+    # The mouse went right and up on the screen: the hoof's target went right and up in
+    # the shape's coordinates (y up), by about the drag's length, one update a move or
+    # fewer (a backend may merge moves).
+    moved = np.asarray(row["moved"])
+    assert moved[0] > 20 and moved[1] > 10, moved
+    assert abs(moved[1] / moved[0] - live.DRAG[1] / live.DRAG[0]) < 0.2
+    assert moves // 4 <= row["updates"] <= moves + 1
+
+
+def test_interact_in_jupyterlab_in_chromium(tmp_path):
+    missing = live.missing_for_browser()
+    if missing:
+        pytest.skip(f"the browser test needs {missing}")
+    moves = 12
+    row = live.browser_drag(tmp_path, moves=moves, step_s=0.05)
+    check_dragged(row, moves)
+    # The widget's picture changed where the leg went, and only around the shape.
+    before = np.asarray(Image.open(tmp_path / "before.png").convert("RGB"), np.int32)
+    after = np.asarray(Image.open(tmp_path / "after.png").convert("RGB"), np.int32)
+    changed = np.abs(after - before).max(axis=-1) > 40
+    rows, cols = np.indices(changed.shape)
+    x, y = row["pressed_at"]
+    near = np.hypot(cols - x, rows - y) < 100
+    assert (changed & near).sum() > 300
+    assert changed.mean() < 0.25
+    # The browser drew the drag's poses as they came.
+    assert row["browser_pictures"] >= moves // 4
+
+
+def test_interact_in_a_tk_window_on_a_virtual_display(tmp_path):
+    missing = live.missing_for_window()
+    if missing:
+        pytest.skip(f"the window test needs {missing}")
+    moves = 12
+    row = live.window_drag(tmp_path, moves=moves, step_s=0.05)
+    check_dragged(row, moves)
