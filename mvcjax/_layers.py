@@ -5,6 +5,7 @@ bottom layer first."""
 from __future__ import annotations
 
 import os
+import warnings
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -29,11 +30,14 @@ class Layer(NamedTuple):
     picture: Float[np.ndarray, "rows cols 4"]
 
 
-def _canvas_layer(name: str, image, offset, canvas: tuple[int, int]) -> Layer:
-    """A layer's pixels (a Pillow image placed at `offset = (left, top)`) on the canvas."""
+def _canvas_layer(name: str, image, offset, canvas: tuple[int, int],
+                  opacity: float = 1.0) -> Layer:
+    """A layer's pixels (a Pillow image placed at `offset = (left, top)`) on the canvas,
+    its alpha times `opacity`."""
     rows, cols = canvas
     picture = np.zeros((rows, cols, 4), np.float32)
     pixels = load_image(image)
+    pixels[..., 3] *= opacity
     left, top = int(offset[0]), int(offset[1])
     # The part of the layer that lies on the canvas (a layer may reach past its edges).
     r0, c0 = max(top, 0), max(left, 0)
@@ -43,18 +47,41 @@ def _canvas_layer(name: str, image, offset, canvas: tuple[int, int]) -> Layer:
     return Layer(name, picture)
 
 
+def _opacity(layer, scale: float) -> float:
+    """A layer's opacity times its groups' (each as a fraction of `scale`)."""
+    opacity = 1.0
+    while layer is not None and hasattr(layer, "opacity") and hasattr(layer, "parent"):
+        opacity *= float(layer.opacity) / scale
+        layer = layer.parent
+    return opacity
+
+
+def _warn_blend_modes(path: str, modes: dict[str, str]) -> None:
+    if modes:
+        listed = ", ".join(f"{name!r} ({mode})" for name, mode in modes.items())
+        warnings.warn(f"{path!r}: layers {listed} blend by other modes than Normal; mvcjax "
+                      "lays every part over those beneath (Normal), so their colours will "
+                      "differ from the file's. Merge such effects into the layer's pixels to "
+                      "keep them.", UserWarning, stacklevel=4)
+
+
 def _read_psd(path: str) -> list[Layer]:
     from psd_tools import PSDImage
+    from psd_tools.constants import BlendMode
 
     psd = PSDImage.open(path)
-    layers = []
+    layers, modes = [], {}
     for layer in psd.descendants():  # bottom to top, groups opened
         if layer.is_group() or not layer.is_visible():
             continue
         image = layer.topil()
         if image is None:  # an adjustment or an empty layer: nothing to draw
             continue
-        layers.append(_canvas_layer(layer.name, image, layer.offset, (psd.height, psd.width)))
+        if layer.blend_mode not in (BlendMode.NORMAL, BlendMode.PASS_THROUGH):
+            modes[layer.name] = layer.blend_mode.name.lower().replace("_", " ")
+        layers.append(_canvas_layer(layer.name, image, layer.offset, (psd.height, psd.width),
+                                    _opacity(layer, 255.0)))
+    _warn_blend_modes(path, modes)
     return layers
 
 
@@ -64,8 +91,12 @@ def _read_ora(path: str) -> list[Layer]:
     project = Project.load(path)
     cols, rows = project.dimensions
     # pyora lists the layers bottom first (the file's stack lists them top first).
-    return [_canvas_layer(layer.name, layer.get_image_data(), layer.offsets, (rows, cols))
-            for layer in project.iter_layers if layer.visible]
+    visible = [layer for layer in project.iter_layers if layer.visible]
+    _warn_blend_modes(path, {layer.name: layer.composite_op.split(":")[-1] for layer in visible
+                             if layer.composite_op not in ("svg:src-over", None)})
+    return [_canvas_layer(layer.name, layer.get_image_data(), layer.offsets, (rows, cols),
+                          _opacity(layer, 1.0))
+            for layer in visible]
 
 
 def _read_layered_file(path) -> list[Layer]:
@@ -95,7 +126,9 @@ def load_layers(layers: Any) -> list[Layer]:
     Args:
         layers: a path to a layered file (`.psd`/`.psb` read by psd-tools, `.ora`
             OpenRaster read by pyora: visible pixel layers, groups opened, each placed
-            on the canvas), or a list of parts in draw order, bottom first: pictures
+            on the canvas, its alpha times its opacity and its groups'; a layer that
+            blends by another mode than Normal is drawn as Normal, with a warning), or a
+            list of parts in draw order, bottom first: pictures
             (arrays, Pillow images or paths, read by `load_image`), `Layer`s or
             `(name, picture)` pairs, all the same size.
 

@@ -187,9 +187,10 @@ def test_gradients_match_finite_differences(layers):
         assert abs(float(fd) - float(grad[row, axis])) < 1e-5 * max(1.0, abs(float(fd)))
 
 
-def _write_psd(path, layers):
+def _write_psd(path, layers, opacity=None, multiply=None):
     from psd_tools import PSDImage
     from psd_tools.api.layers import PixelLayer
+    from psd_tools.constants import BlendMode
 
     rows, cols = layers[0].picture.shape[:2]
     psd = PSDImage.new("RGBA", (cols, rows))
@@ -197,19 +198,26 @@ def _write_psd(path, layers):
         image = Image.fromarray(mvcjax.export.to_uint8(layer.picture), "RGBA")
         # Cropped to its opaque part and placed by its offset, as Photoshop stores layers.
         left, top, right, bottom = image.getbbox()
-        psd.append(PixelLayer.frompil(image.crop((left, top, right, bottom)), psd,
-                                      layer.name, top=top, left=left))
+        written = PixelLayer.frompil(image.crop((left, top, right, bottom)), psd, layer.name,
+                                     top=top, left=left)
+        if layer.name == opacity:
+            written.opacity = 128
+        if layer.name == multiply:
+            written.blend_mode = BlendMode.MULTIPLY
+        psd.append(written)
     psd.save(path)
 
 
-def _write_ora(path, layers):
+def _write_ora(path, layers, opacity=None, multiply=None):
     import pyora
 
     rows, cols = layers[0].picture.shape[:2]
     project = pyora.Project.new(cols, rows)
     for layer in layers:
         project.add_layer(Image.fromarray(mvcjax.export.to_uint8(layer.picture), "RGBA"),
-                          layer.name)
+                          layer.name, opacity=128 / 255 if layer.name == opacity else 1.0,
+                          composite_op="svg:multiply" if layer.name == multiply
+                          else "svg:src-over")
     project.save(path)
 
 
@@ -221,6 +229,18 @@ def test_layered_files_read_back_as_their_layers(tmp_path, layers, write):
     assert [layer.name for layer in back] == [layer.name for layer in layers]
     for read, drawn in zip(back, layers):
         np.testing.assert_allclose(read.picture, drawn.picture, atol=0.5 / 255)
+
+
+@pytest.mark.parametrize("write", [_write_psd, _write_ora], ids=["psd", "ora"])
+def test_a_layers_opacity_scales_its_alpha_and_other_blend_modes_are_named(tmp_path, layers,
+                                                                         write):
+    path = tmp_path / f"figure.{write.__name__[-3:]}"
+    write(path, layers, opacity=layers[1].name, multiply=layers[2].name)
+    with pytest.warns(UserWarning, match=f"{layers[2].name!r} \\(multiply\\)"):
+        back = mvcjax.load_layers(path)
+    np.testing.assert_allclose(back[1].picture[..., 3], layers[1].picture[..., 3] * 128 / 255,
+                               atol=1 / 255)
+    np.testing.assert_allclose(back[0].picture, layers[0].picture, atol=0.5 / 255)
 
 
 def test_a_character_builds_from_a_psd_file(tmp_path, layers, character):
