@@ -8,8 +8,11 @@ scatter-max over the draw order), and each pixel is then shaded once from its tr
 barycentric coordinates, the rest position there, a bilinear lookup of the picture. Edges
 on the mesh's boundary are antialiased by coverage, a linear ramp of the pixel's distance
 to the edge, so that the picture depends smoothly on the vertices there too; a second
-layer (the top candidate covering the pixel's centre) shows through where the top one
-covers a pixel partly, so that a part drawn over another has clean edges.
+layer (the top candidate covering the whole pixel) shows through where the top one
+covers a pixel partly, so that a part drawn over another has clean edges. The draw order
+is fixed at rest (`core_depth` by default, in a few bands of depth); where no candidate
+covers a pixel wholly (the outline), the one covering it most draws it, so that
+neighbours in different bands still draw one edge.
 
 Pixel convention, shared with `Shape.from_image`: a picture of `rows x cols` pixels spans
 a window `(xmin, ymin, xmax, ymax)` of the plane, y up; pixel `(row, col)` is the square
