@@ -24,13 +24,20 @@ def check_dragged(row: dict, moves: int) -> None:
     assert moves // 4 <= row["updates"] <= moves + 1
 
 
-def test_interact_in_jupyterlab_in_chromium(tmp_path):
-    missing = live.missing_for_browser()
+MOVES = 12
+
+
+def dragged(tmp_path, missing, drag) -> dict:
+    """The drag's row, checked, or a skip naming what to install."""
     if missing:
-        pytest.skip(f"the browser test needs {missing}")
-    moves = 12
-    row = live.browser_drag(tmp_path, moves=moves, step_s=0.05)
-    check_dragged(row, moves)
+        pytest.skip(f"the live drag needs {missing}")
+    row = drag(tmp_path, moves=MOVES, step_s=0.05)
+    check_dragged(row, MOVES)
+    return row
+
+
+def test_interact_in_jupyterlab_in_chromium(tmp_path):
+    row = dragged(tmp_path, live.missing_for_browser(), live.browser_drag)
     # The widget's picture changed where the leg went, and only around the shape.
     before = np.asarray(Image.open(tmp_path / "before.png").convert("RGB"), np.int32)
     after = np.asarray(Image.open(tmp_path / "after.png").convert("RGB"), np.int32)
@@ -41,13 +48,8 @@ def test_interact_in_jupyterlab_in_chromium(tmp_path):
     assert (changed & near).sum() > 300
     assert changed.mean() < 0.25
     # The browser drew the drag's poses as they came.
-    assert row["browser_pictures"] >= moves // 4
+    assert row["browser_pictures"] >= MOVES // 4
 
 
 def test_interact_in_a_tk_window_on_a_virtual_display(tmp_path):
-    missing = live.missing_for_window()
-    if missing:
-        pytest.skip(f"the window test needs {missing}")
-    moves = 12
-    row = live.window_drag(tmp_path, moves=moves, step_s=0.05)
-    check_dragged(row, moves)
+    dragged(tmp_path, live.missing_for_window(), live.window_drag)
