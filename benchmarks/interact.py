@@ -16,7 +16,11 @@ nothing), the first pose (compilation included), and a full redraw of the figure
 (`canvas.draw()`, the pose not recomputed): the drawing cost blitting avoids, to compare
 with the update's drawing. Then a second drag pulls the back's handle down through the
 legs in `--moves` steps, which folds them: the median update over the moves where
-something is folded (the overlay and the hint drawn) and the median number folded. With both
+something is folded (the overlay and the hint drawn) and the median number folded. Then,
+back at rest, `--pins` clicks on the shape away from the handles each add a pin and a
+right-click on it takes it out again: the median time from the click to the new pose on
+the canvas, for adding and for removing (`Posing.pin_seconds`), and the compilations
+they caused (0 expected: a pin changes numbers, not shapes). With both
 `show_folds` measured (the default), the two sessions take turns event by event, so
 that on a shared machine the load falls on both alike. The target, at least 30
 updates a second at 6k vertices, is printed and recorded, never asserted.
@@ -35,6 +39,7 @@ import time
 from _timing import median_ms, spacing_for, write_results
 
 TARGET_UPDATES_PER_S = 30.0
+PIN_CLICKS = 10
 BACK = 3  # the horse's back handle
 FOLDING_PULL = (0.0, -150.0)  # pulling the back's handle this far folds the horse's legs
 SOLVERS = ("default", "paper", "fold-free")
@@ -49,11 +54,40 @@ class _Compilations:
             self.count += 1
 
 
-def _mouse(posing, kind: str, point) -> None:
+def _mouse(posing, kind: str, point, button: int = 1) -> None:
     from matplotlib.backend_bases import MouseEvent
 
     x, y = posing.axes.transData.transform(point)
-    MouseEvent(f"{kind}_event", posing.figure.canvas, x, y, button=1)._process()
+    MouseEvent(f"{kind}_event", posing.figure.canvas, x, y, button=button)._process()
+
+
+def _pin_spots(rig, count: int):
+    """`count` shape-mesh vertices off the outline, a tenth of the shape's size or more
+    from every handle: where the clicks add pins."""
+    import numpy as np
+
+    from mvcjax._topology import boundary_loops
+
+    vertices = np.asarray(rig.shape_mesh.vertices, np.float64)
+    handles = np.asarray(rig.handle_positions, np.float64)
+    far = np.min(np.linalg.norm(vertices[:, None] - handles[None], axis=2), axis=1)
+    outline = np.concatenate(boundary_loops(np.asarray(rig.shape_mesh.faces)))
+    inner = np.setdiff1d(np.flatnonzero(far > 0.1 * np.ptp(vertices, axis=0).max()), outline)
+    return vertices[np.random.default_rng(0).choice(inner, count, replace=False)]
+
+
+def _pins(sessions, spots) -> tuple[list[list[float]], list[list[float]]]:
+    """For each session, the click-to-pose seconds of each pin added at `spots` and of
+    its removal, the sessions taking turns."""
+    added, removed = [[] for _ in sessions], [[] for _ in sessions]
+    for spot in spots:
+        for k, posing in enumerate(sessions):
+            _mouse(posing, "button_press", spot)
+            _mouse(posing, "button_release", spot)
+            added[k].append(posing.pin_seconds[-1])
+            _mouse(posing, "button_press", posing.targets[-1], button=3)
+            removed[k].append(posing.pin_seconds[-1])
+    return added, removed
 
 
 def _solver(name: str):
@@ -82,7 +116,8 @@ def _drag(sessions, handle: int, path) -> tuple[list[list[float]], list[list[int
     return times, folds
 
 
-def run(rig, mode: str, size: int, moves: int, solver: str, shows: list[bool]) -> list[dict]:
+def run(rig, mode: str, size: int, moves: int, solver: str, shows: list[bool],
+        pins: int) -> list[dict]:
     """One row per `show_folds` in `shows`, their sessions dragged side by side."""
     import jax
     import jax.numpy as jnp
@@ -115,17 +150,21 @@ def run(rig, mode: str, size: int, moves: int, solver: str, shows: list[bool]) -
     compilations = _Compilations()
     jax.monitoring.register_event_duration_secs_listener(compilations)
     circle_times, circle_folds = _drag(sessions, len(sessions[0].targets) - 1, path)
-    targets = sessions[0].targets.copy()
+    targets = sessions[0]._all.copy()  # every row of the session's rig
     for posing in sessions:
         posing.reset()
     back = sessions[0].targets[BACK].copy()
     pull = back + np.linspace(0, 1, moves + 1)[1:, None] * np.asarray(FOLDING_PULL)
     pull_times, pull_folds = _drag(sessions, BACK, pull)
+    dragging = compilations.count
+    for posing in sessions:
+        posing.reset()
+    added, removed = _pins(sessions, _pin_spots(rig, pins))
     jax.monitoring.unregister_event_duration_listener(compilations)
     targets = jnp.asarray(targets, rig.energy.rest.dtype)
     rows = []
     for k, posing in enumerate(sessions):
-        pose_ms = median_ms(posing._pose, [(targets,)], repeats=50)
+        pose_ms = median_ms(posing._pose, [(posing._rig, targets)], repeats=50)
         times = np.asarray(circle_times[k])
         folds = np.asarray(pull_folds[k])
         folded = folds > 0
@@ -145,7 +184,11 @@ def run(rig, mode: str, size: int, moves: int, solver: str, shows: list[bool]) -
             "updates_per_s": 1e3 / update_ms,
             "pose_ms": pose_ms,
             "drawing_ms": update_ms - pose_ms,
-            "compilations_while_dragging": compilations.count,
+            "compilations_while_dragging": dragging,
+            "pin_clicks": pins,
+            "pin_add_ms": float(np.median(added[k]) * 1e3),
+            "pin_remove_ms": float(np.median(removed[k]) * 1e3),
+            "compilations_while_pinning": compilations.count - dragging,
             "folds_max_circle": int(max(circle_folds[k])),
             "folded_moves": int(folded.sum()),
             "folded_update_ms": (float(np.median(np.asarray(pull_times[k])[folded]) * 1e3)
@@ -169,6 +212,8 @@ def main(argv=None) -> int:
     parser.add_argument("--size", type=int,
                         help="textured picture's side (default: the axes' size in pixels)")
     parser.add_argument("--moves", type=int, help="motion events per drag")
+    parser.add_argument("--pins", type=int, default=PIN_CLICKS,
+                        help="pins added and removed by clicks")
     parser.add_argument("--solver", choices=SOLVERS, default="default",
                         help="the solver of every update: rig.deform's default, the "
                              "paper's FixedG(), or FoldFree()")
@@ -189,7 +234,7 @@ def main(argv=None) -> int:
     for vertices in sizes:
         rig = mvcjax.Rig.build(shape, handles, shape_spacing=spacing_for(shape, vertices))
         for mode in ("mesh", "textured"):
-            for row in run(rig, mode, args.size, moves, args.solver, shows):
+            for row in run(rig, mode, args.size, moves, args.solver, shows, args.pins):
                 rows.append(row)
                 show = row["show_folds"]
                 folded = (f"{row['folded_update_ms']:.1f} ms with {row['folds_median']} "
@@ -201,7 +246,10 @@ def main(argv=None) -> int:
                       f"drawing {row['drawing_ms']:.1f} ms), "
                       f"{row['compilations_while_dragging']} compilations while dragging, "
                       f"{row['folds_max_circle']} folded; pulled through the legs: "
-                      f"{folded}; full redraw {row['full_redraw_ms']:.1f} ms; target >= "
+                      f"{folded}; full redraw {row['full_redraw_ms']:.1f} ms; a pin added "
+                      f"{row['pin_add_ms']:.1f} ms, removed {row['pin_remove_ms']:.1f} ms "
+                      f"click to pose ({row['compilations_while_pinning']} compilations); "
+                      "target >= "
                       f"{TARGET_UPDATES_PER_S:.0f}/s {'met' if row['target_met'] else 'MISSED'}",
                       flush=True)
     if args.json:

@@ -12,6 +12,9 @@ window on a virtual X display.
 - **window**: Xvfb, a script showing `mvcjax.interact` with the TkAgg backend, and
   `xdotool` pressing, moving and releasing the X pointer over the same dot.
 
+After the drag, a click on the horse's body adds a pin there and a right-click on its
+dot removes it: the time from each click to its pose is reported (`Posing.pin_seconds`).
+
 Both report the drag's time, the updates the kernel (or script) made and their median
 time, the pictures the browser drew a second, and whether the dragged target moved by
 the drag. Needs `playwright`, `jupyterlab` and `ipympl` (pip) and Chromium, Xvfb and
@@ -42,6 +45,7 @@ from _timing import spacing_for, write_results
 
 HOOF = 0  # the horse's front hoof: the dot dragged
 DRAG = (60.0, 40.0)  # screen pixels: right and up
+BODY = (200.0, 180.0)  # a spot on the horse's body, away from its handles: a pin goes there
 CHROMIUM = "/usr/bin/chromium"
 
 # The rig and the session, as a user's notebook or script has them.
@@ -58,13 +62,19 @@ posing = mvcjax.interact(rig{texture})
 PINS = """\
 posing.figure.canvas.draw()
 print("PINS " + json.dumps({"pins": posing.axes.transData.transform(posing.targets).tolist(),
+                             "body": posing.axes.transData.transform([{body}]).tolist()[0],
                              "size": list(posing.figure.canvas.get_width_height())}))
+"""
+DRAGGED = """\
+print("DRAGGED " + json.dumps({"updates": posing.updates}))
 """
 RESULT = """\
 print("RESULT " + json.dumps({"targets": posing.targets.tolist(),
                                "rest": np.asarray(rig.handle_positions).tolist(),
                                "updates": posing.updates,
                                "update_seconds": posing.update_seconds,
+                               "pin_seconds": posing.pin_seconds,
+                               "rows": posing.rig.handles.count,
                                "vertices": int(rig.shape_mesh.vertices.shape[0])}))
 """
 # Counts the pictures drawn on each canvas of the page, with their times.
@@ -130,14 +140,18 @@ def _summary(result: dict, drag_s: float) -> dict:
     import numpy as np
 
     moved = np.subtract(result["targets"][HOOF], result["rest"][HOOF])
-    seconds = result["update_seconds"]
+    # The drag's updates: those before the pins were clicked.
+    dragged = result.get("dragged", result["updates"] - len(result["pin_seconds"]))
+    seconds = result["update_seconds"][:dragged]
     return {
         "shape_vertices": result["vertices"],
         "moved": moved.tolist(),
-        "updates": result["updates"],
+        "updates": dragged,
         "update_ms": float(np.median(seconds) * 1e3) if seconds else None,
         "drag_s": drag_s,
-        "updates_per_s": result["updates"] / drag_s,
+        "updates_per_s": dragged / drag_s,
+        "pin_ms": [1e3 * s for s in result["pin_seconds"]],
+        "rows_after_pins": result["rows"],
     }
 
 
@@ -151,7 +165,8 @@ def browser_drag(workdir: Path, *, spacing: float | None = None, textured: bool 
     workdir = Path(workdir)
     notebook = nbformat.v4.new_notebook(cells=[
         nbformat.v4.new_code_cell("%matplotlib widget\n" + _setup(spacing, textured)),
-        nbformat.v4.new_code_cell(PINS), nbformat.v4.new_code_cell(RESULT)])
+        nbformat.v4.new_code_cell(PINS.replace("{body}", repr(list(BODY)))),
+        nbformat.v4.new_code_cell(DRAGGED), nbformat.v4.new_code_cell(RESULT)])
     notebook.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3",
                                        "language": "python"}
     nbformat.write(notebook, workdir / "pose.ipynb")
@@ -193,9 +208,12 @@ def browser_drag(workdir: Path, *, spacing: float | None = None, textured: bool 
             page.wait_for_timeout(500)
             box = canvas.bounding_box()
             width, height = pins["size"]
-            x, y = pins["pins"][HOOF]
-            x = box["x"] + x * box["width"] / width
-            y = box["y"] + (height - y) * box["height"] / height
+
+            def on_page(point):  # figure pixels (y up) -> the page's
+                return (box["x"] + point[0] * box["width"] / width,
+                        box["y"] + (height - point[1]) * box["height"] / height)
+
+            x, y = on_page(pins["pins"][HOOF])
             canvas.screenshot(path=str(workdir / "before.png"))
             row["pressed_at"] = [x - box["x"], y - box["y"]]  # in the screenshots
             page.evaluate("window.__draws = []")
@@ -206,12 +224,23 @@ def browser_drag(workdir: Path, *, spacing: float | None = None, textured: bool 
                 page.mouse.move(x + DRAG[0] * k / moves, y - DRAG[1] * k / moves)
                 page.wait_for_timeout(step_s * 1e3)
             page.mouse.up()
-            # The kernel runs the result cell after every mouse message before it.
-            result = run_cell(2, "RESULT")
+            # The kernel runs a cell after every mouse message before it.
+            dragged = run_cell(2, "DRAGGED")["updates"]
             drag_s = time.monotonic() - begin
             page.wait_for_timeout(1000)
             canvas.screenshot(path=str(workdir / "after.png"))
-            draws = page.evaluate("window.__draws")
+            draws = page.evaluate("window.__draws")  # the drag's pictures
+            # A click on the body adds a pin there; a right-click on its dot removes it.
+            body = on_page(pins["body"])
+            row["clicked_at"] = [body[0] - box["x"], body[1] - box["y"]]
+            page.mouse.click(*body)
+            page.wait_for_timeout(1000)
+            canvas.screenshot(path=str(workdir / "pinned.png"))
+            page.mouse.click(*body, button="right")
+            page.wait_for_timeout(1000)
+            canvas.screenshot(path=str(workdir / "unpinned.png"))
+            result = run_cell(3, "RESULT")
+            result["dragged"] = dragged
             browser.close()
     finally:
         server.terminate()
@@ -244,6 +273,7 @@ widget = posing.figure.canvas.get_tk_widget()
 out = sys.argv[1]
 with open(out + ".tmp", "w") as f:
     json.dump({{"pins": posing.axes.transData.transform(posing.targets).tolist(),
+               "body": posing.axes.transData.transform([{body}]).tolist()[0],
                "origin": [widget.winfo_rootx(), widget.winfo_rooty()],
                "height": widget.winfo_height()}}, f)
 os.replace(out + ".tmp", out + ".pins")
@@ -260,7 +290,7 @@ def window_drag(workdir: Path, *, spacing: float | None = None, textured: bool =
     workdir = Path(workdir)
     script = workdir / "window.py"
     script.write_text(WINDOW_SCRIPT.format(
-        setup=_setup(spacing, textured),
+        setup=_setup(spacing, textured), body=list(BODY),
         result=RESULT.replace("print(", "open(out + '.result', 'w').write(", 1)))
     display = f":{90 + os.getpid() % 400}"
     xvfb = subprocess.Popen(["Xvfb", display, "-screen", "0", "1280x1024x24", "-nolisten",
@@ -284,9 +314,11 @@ def window_drag(workdir: Path, *, spacing: float | None = None, textured: bool =
             time.sleep(0.1)
         row = {"window_s": time.monotonic() - started}
         pins = json.loads(pins_file.read_text())
-        # Figure pixels (y up) are the Tk canvas' pixels (y down).
-        x, y = pins["pins"][HOOF]
-        x, y = pins["origin"][0] + x, pins["origin"][1] + pins["height"] - y
+        def on_screen(point):  # figure pixels (y up) -> the screen's (y down)
+            return (round(pins["origin"][0] + point[0]),
+                    round(pins["origin"][1] + pins["height"] - point[1]))
+
+        x, y = on_screen(pins["pins"][HOOF])
         xdotool("mousemove", round(x), round(y))
         time.sleep(0.2)
         xdotool("mousedown", 1)
@@ -296,6 +328,12 @@ def window_drag(workdir: Path, *, spacing: float | None = None, textured: bool =
             time.sleep(step_s)
         xdotool("mouseup", 1)
         drag_s = time.monotonic() - begin
+        time.sleep(1.0)
+        # A click on the body adds a pin there; a right-click on its dot removes it.
+        xdotool("mousemove", *on_screen(pins["body"]))
+        xdotool("click", 1)
+        time.sleep(1.0)
+        xdotool("click", 3)
         time.sleep(1.0)
         out.with_suffix(".stop").touch()
         child.wait(60)
@@ -342,7 +380,9 @@ def main(argv=None) -> int:
                   f"{row['shape_vertices']:>6} vertices: {row['updates']} updates in "
                   f"{row['drag_s']:.2f} s ({row['updates_per_s']:.1f}/s, median update "
                   f"{row['update_ms']:.1f} ms){seen}; the dot moved "
-                  f"({row['moved'][0]:.1f}, {row['moved'][1]:.1f})", flush=True)
+                  f"({row['moved'][0]:.1f}, {row['moved'][1]:.1f}); a pin added and removed "
+                  f"by clicks, click to pose {', '.join(f'{t:.0f}' for t in row['pin_ms'])} ms",
+                  flush=True)
     if args.json:
         write_results(args.json, rows, benchmark="live")
     return 0

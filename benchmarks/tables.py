@@ -232,6 +232,7 @@ def interact_table(data: dict, source: str) -> str:
     """`benchmarks/interact.py`: updates of a drag in `mvcjax.interact`."""
     rows_in = data["rows"]
     folds_measured = any("show_folds" in r for r in rows_in)
+    pins_measured = any("pin_add_ms" in r for r in rows_in)
     rows = []
     for r in rows_in:
         row = [f"{r['shape_vertices']:,}",
@@ -243,11 +244,16 @@ def interact_table(data: dict, source: str) -> str:
                 str(r["compilations_while_dragging"]), _seconds(r["first_pose_ms"])]
         if folds_measured:
             row.append(_ms(r.get("folded_update_ms")))
+        if pins_measured:
+            row += [_ms(r.get("pin_add_ms")), _ms(r.get("pin_remove_ms")),
+                    str(r.get("compilations_while_pinning", "-"))]
         rows.append(row)
     head = ["shape vertices", "drawn", *(["folds"] if folds_measured else []), "update",
             "updates a second", "compiled pose", "drawing", "full redraw",
             "compilations while dragging", "first pose (compiles)",
-            *(["update while folded"] if folds_measured else [])]
+            *(["update while folded"] if folds_measured else []),
+            *(["pin added, click to pose", "pin removed", "compilations while pinning"]
+              if pins_measured else [])]
     meta = data.get("meta", {})
     target = rows_in[0].get("target_updates_per_s") if rows_in else None
     met = [r["target_met"] for r in rows_in if "target_met" in r]
@@ -422,9 +428,11 @@ def live_table(data: dict, source: str) -> str:
         f"{r['drag_s']:.2f} s", f"{r['updates_per_s']:.1f}", _ms(r["update_ms"]),
         (f"{r['browser_pictures']} ({r['browser_pictures_per_s']:.1f} a second)"
          if r["where"] == "browser" else "-"),
+        " / ".join(_ms(t) for t in r["pin_ms"]) if r.get("pin_ms") else "-",
     ] for r in data["rows"]]
     head = ["where", "drawn", "shape vertices", "mouse moves", "updates", "drag",
-            "updates a second", "median update", "pictures the browser drew"]
+            "updates a second", "median update", "pictures the browser drew",
+            "pin added / removed by a click, click to pose"]
     return "\n".join([_measured_on(data, source, "a real mouse"), "", *_table(head, rows)])
 
 

@@ -477,17 +477,23 @@ class CharacterRenderer(JittableModule):
         # Each part checked and textured as a rig of its own would be, then all laid out
         # as one mesh: the layers side by side, each with a border of its own edge's
         # colours so that lookups at its edge never read the next one.
-        parts = [Renderer.build(rig, layer.picture, window=window, size=size,
-                                background=background, **options)
+        unknown = set(options) - {"antialias", "alpha", "dtype"}
+        if unknown:
+            raise TypeError(f"CharacterRenderer.build got unexpected options {sorted(unknown)}; "
+                            "it takes antialias, alpha and dtype besides its arguments.")
+        settings = dict(window=window, size=size, background=background, image_window=None,
+                        fill="checkerboard", depth=None, antialias=True, alpha="mesh",
+                        budget=None, dtype=None) | options
+        parts = [Renderer._prepared(rig, layer.picture, **settings)
                  for rig, layer in zip(character.parts, layers)]
         first = parts[0]
         gap = 2
-        textures = [np.pad(np.asarray(p.texture), ((0, 0), (gap, gap), (0, 0)), mode="edge")
-                    for p in parts]
+        textures = [np.pad(np.asarray(p["texture"]), ((0, 0), (gap, gap), (0, 0)),
+                           mode="edge") for p in parts]
         width = textures[0].shape[1]
-        points = [np.asarray(p.texture_points) + [k * width + gap, 0.0]
+        points = [np.asarray(p["texture_points"]) + [k * width + gap, 0.0]
                   for k, p in enumerate(parts)]
-        part_of_face = np.repeat(np.arange(len(parts)), [p.faces.shape[0] for p in parts])
+        part_of_face = np.repeat(np.arange(len(parts)), [len(p["faces"]) for p in parts])
         # Each part's triangles in its own renderer's draw order (deepest last), all on
         # the part's level: within a part, the triangle covering a pixel most draws it,
         # so that the part's outline stays one antialiased edge, and where the part folds
@@ -496,19 +502,17 @@ class CharacterRenderer(JittableModule):
             raise ValueError(f"A character of {len(parts)} parts and {len(part_of_face)} "
                              "triangles has more parts than draw levels: merge layers, or "
                              "build it with a coarser shape_spacing.")
-        offsets = np.cumsum([0] + [p.rest.shape[0] for p in parts])[:-1]
-        faces = np.concatenate([np.asarray(p.faces) + at for p, at in zip(parts, offsets)])
-        dtype = first.texture.dtype
+        offsets = np.cumsum([0] + [len(p["vertices"]) for p in parts])[:-1]
+        faces = np.concatenate([np.asarray(p["faces"]) + at for p, at in zip(parts, offsets)])
         mesh = Renderer._from_arrays(
             np.asarray(character.shape_mesh.vertices), faces,
             np.concatenate(points), np.concatenate(textures, axis=1),
-            np.asarray(first.window), first.shape,
-            level=to_device(part_of_face, np.int32),
-            budget=budget, background=np.asarray(first.background),
-            antialias=first.antialias, see_through=first.see_through, dtype=dtype)
+            first["window"], first["size"], level=to_device(part_of_face, np.int32),
+            budget=budget, background=first["background"], antialias=first["antialias"],
+            see_through=first["see_through"], dtype=first["dtype"])
         return cls(mesh=mesh, part_of_face=to_device(part_of_face, np.int32),
                    order=to_device(np.arange(len(parts)), np.int32),
-                   sizes=tuple(int(p.rest.shape[0]) for p in parts), names=character.names)
+                   sizes=tuple(len(p["vertices"]) for p in parts), names=character.names)
 
     @property
     def shape(self) -> tuple[int, int]:

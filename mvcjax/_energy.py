@@ -9,7 +9,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from ._checks import as_array, kind_of
-from ._stencils import EDGE, HANDLE, LAPLACIAN, Stencil, length_scale
+from ._stencils import EDGE, LAPLACIAN, Stencil, length_scale
 
 
 def _safe_normalise(v: Float[Array, "m 2"]) -> Float[Array, "m 2"]:
@@ -37,7 +37,9 @@ def _weight(name: str):
             if host.dtype.kind not in "iuf":
                 raise TypeError(f"Weights({name}={value!r}): a weight is a number >= 0, got "
                                 f"{kind_of(host)}.")
-        return jnp.asarray(value)
+            # Moved, not staged: `jnp.asarray` compiles a program to stage a number.
+            return jax.device_put(value)
+        return value
 
     return convert
 
@@ -260,8 +262,11 @@ class Energy(eqx.Module):
         mvc_weight: `(g, k)` its mean value coordinates at rest (0 on padding).
         edges: `(e, 2)` the edges `E_CG` (every edge but the polygon's).
         edge_length: `(e,)` their rest lengths.
-        handles: `(h,)` the control vertex of each row of `C` (each point a handle pins;
-            bones sharing a joint pin its vertex twice).
+        handles: `(h, k)` the control vertices of each row of `C`: one vertex for a
+            point a handle pins (bones sharing a joint pin its vertex twice), a control
+            triangle's three for a pin placed inside one (`Rig.with_pin`).
+        handle_coef: `(h, k)` their coefficients: 1 for a pinned vertex, barycentric
+            coordinates for a pin inside a triangle, 0 for a row that pins nothing.
         faces: `(f, 3)` the control mesh's counter-clockwise triangles (not a term of
             the energy: what a fold is counted on, and what `FoldFree` keeps unfolded).
         weights: the term weights.
@@ -278,7 +283,8 @@ class Energy(eqx.Module):
     mvc_weight: Float[Array, "g k"]
     edges: Int[Array, "e 2"]
     edge_length: Float[Array, " e"]
-    handles: Int[Array, " h"]
+    handles: Int[Array, "h j"]
+    handle_coef: Float[Array, "h j"]
     faces: Int[Array, "f 3"]
     weights: Weights
     scale: Float[Array, ""]
@@ -306,10 +312,23 @@ class Energy(eqx.Module):
             Term.linear("mvc", mvc, w.mvc),
             Term.turned("length", Stencil.fixed(self.edges, EDGE, dtype), w.length,
                         self.edge_length),
-            Term.pinned_to_targets("handle", Stencil.fixed(self.handles[:, None], HANDLE,
-                                                           dtype), w.handle),
+            Term.pinned_to_targets("handle", self.handle_stencil(), w.handle),
             *(eqx.tree_at(lambda t: t.weight, t, t.weight * factor) for t in self.extra),
         )
+
+    def handle_stencil(self) -> Stencil:
+        """The rows of `C`."""
+        return Stencil(self.handles, self.handle_coef)
+
+    def handle_points(self, vertices: Float[Array, "n 2"]) -> Float[Array, "h 2"]:
+        """`C V`: where each pinned point is for these control vertices (zero for a row
+        that pins nothing)."""
+        return self.handle_stencil().vectors(vertices)
+
+    def handle_presence(self) -> Float[Array, " h"]:
+        """1 for each row of `C` that pins, 0 for one that does not (its coefficients'
+        sum)."""
+        return jnp.sum(self.handle_coef, axis=1)
 
     def term(self, name: str) -> Term:
         """The term called `name` (unnormalised weights)."""
@@ -365,26 +384,33 @@ def total_energy(
 
 
 def rigid_alignment(
-    rest: Float[Array, "h 2"], targets: Float[Array, "h 2"]
+    rest: Float[Array, "h 2"], targets: Float[Array, "h 2"],
+    weights: Float[Array, " h"] | None = None,
 ) -> tuple[Float[Array, "2 2"], Float[Array, " 2"]]:
     """Rotation `R` and translation `t` with `rest @ R.T + t` closest to `targets`.
 
-    The 2D Procrustes solution (no reflection). One handle gives a translation only;
+    The 2D Procrustes solution (no reflection), each point counted with its weight
+    (default 1; rows of weight 0 are left out). One handle gives a translation only;
     handle targets that coincide give the identity rotation, with finite gradients.
     """
+    if weights is None:
+        weights = jnp.ones(rest.shape[0], targets.dtype)
+    weights = weights / jnp.sum(weights)
+    mean_rest, mean_target = weights @ rest, weights @ targets
     if rest.shape[0] < 2:
-        return jnp.eye(2, dtype=targets.dtype), jnp.mean(targets - rest, axis=0)
-    p = rest - rest.mean(axis=0)
-    q = targets - targets.mean(axis=0)
+        return jnp.eye(2, dtype=targets.dtype), mean_target - mean_rest
+    p = (rest - mean_rest) * weights[:, None]
+    q = targets - mean_target
     c = jnp.sum(p * q)
     s = jnp.sum(p[:, 0] * q[:, 1] - p[:, 1] * q[:, 0])
     cs = _safe_normalise(jnp.stack([c, s])[None])[0]
     cs = jnp.where(jnp.any(cs != 0), cs, jnp.array([1.0, 0.0], cs.dtype))
     rot = jnp.array([[cs[0], -cs[1]], [cs[1], cs[0]]])
-    return rot, targets.mean(axis=0) - rest.mean(axis=0) @ rot.T
+    return rot, mean_target - mean_rest @ rot.T
 
 
 def rigid_start(energy: Energy, targets: Float[Array, "h 2"]) -> Float[Array, "n 2"]:
     """The rest control mesh moved rigidly to fit the handle targets best."""
-    rot, shift = rigid_alignment(energy.rest[energy.handles], targets)
+    rot, shift = rigid_alignment(energy.handle_points(energy.rest), targets,
+                                 energy.handle_presence())
     return energy.rest @ rot.T + shift

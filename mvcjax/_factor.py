@@ -127,8 +127,8 @@ class AbstractFactor(eqx.Module):
     """The global step, precomputed for one set of weights.
 
     The local-step data is shared: the merged Laplacian and edge rows (`rows`, `coef`)
-    and their rest lengths (`length`), and the rest mesh (`rest`) and its handles, which
-    steps are taken relative to (`StepData`).
+    and their rest lengths (`length`), and the rest mesh (`rest`) and the rows of `C`
+    (`handle_rows`, `handle_coef`), which steps are taken relative to (`StepData`).
 
     Steps take and return the vertices coordinate-major, as the rows `V^T` of shape
     `(2, n)`, the fixed-G loop's layout, and `(n, 2, f)` for many frames (why: "Vertex
@@ -139,7 +139,8 @@ class AbstractFactor(eqx.Module):
     coef: eqx.AbstractVar[Float[Array, "m 3"]]
     length: eqx.AbstractVar[Float[Array, " m"]]
     rest: eqx.AbstractVar[Float[Array, "2 n"]]
-    handles: eqx.AbstractVar[Int[Array, " h"]]
+    handle_rows: eqx.AbstractVar[Int[Array, "h j"]]
+    handle_coef: eqx.AbstractVar[Float[Array, "h j"]]
 
     def local_targets(self, columns: Float[Array, "2 n"]) -> Complex[Array, " m"]:
         """`[delta(V); e(V)]`: each Laplacian and edge vector turned to its rest length."""
@@ -148,7 +149,8 @@ class AbstractFactor(eqx.Module):
 
     def target_shift(self, targets: Float[Array, "h 2"]) -> Float[Array, "2 h"]:
         """The handle targets less the handles' rest positions, coordinate-major."""
-        return targets.T - self.rest[:, self.handles]
+        rest = Stencil(self.handle_rows, self.handle_coef).vectors(self.rest.T)
+        return targets.T - rest.T
 
     @abc.abstractmethod
     def handle_part(self, targets: Float[Array, "h 2"]) -> StepData:
@@ -263,7 +265,7 @@ class DenseFactor(AbstractFactor):
             touch each vertex, padded with `rows.size` (`transpose_table`).
         spread_coef: `(n, d)` their coefficients times their row's weight (0 on
             padding): `A^T W b` for the local rows is a gather of `b` by `spread`.
-        rows, coef, length, rest, handles: see `AbstractFactor`.
+        rows, coef, length, rest, handle_rows, handle_coef: see `AbstractFactor`.
     """
 
     shape: Float[Array, "m n"]
@@ -276,7 +278,8 @@ class DenseFactor(AbstractFactor):
     coef: Float[Array, "m 3"]
     length: Float[Array, " m"]
     rest: Float[Array, "2 n"]
-    handles: Int[Array, " h"]
+    handle_rows: Int[Array, "h j"]
+    handle_coef: Float[Array, "h j"]
 
     def handle_part(self, targets):
         return StepData(self.local_targets(self.rest),
@@ -354,7 +357,8 @@ def _dense_factor(energy: Energy, spread: Int[Array, "n d"]) -> DenseFactor:
         normal_inverse=jax.scipy.linalg.cho_solve(
             cho, jnp.eye(normal.shape[0], dtype=normal.dtype)),
         spread=spread, spread_coef=jnp.append(entries, 0.0)[spread],
-        rows=rows, coef=coef, length=rest_length, rest=energy.rest.T, handles=energy.handles,
+        rows=rows, coef=coef, length=rest_length, rest=energy.rest.T, handle_rows=energy.handles,
+        handle_coef=energy.handle_coef,
     )
 
 
@@ -407,7 +411,7 @@ class SparseFactor(AbstractFactor):
     """`N = A^T W A` factored once on the host; steps solve `N V = A^T W b(V)`.
 
     Attributes:
-        rows, coef, length, rest, handles: see `AbstractFactor`.
+        rows, coef, length, rest, handle_rows, handle_coef: see `AbstractFactor`.
         row_weight: `(m,)` the weight of each local row (Laplacian or length weight).
         normal_rows, normal_cols, normal_values: `N` as triplets, for the matrix-vector
             product that `custom_linear_solve` differentiates through.
@@ -423,7 +427,8 @@ class SparseFactor(AbstractFactor):
     normal_cols: Int[Array, " nnz"]
     normal_values: Float[Array, " nnz"]
     rest: Float[Array, "2 n"]
-    handles: Int[Array, " h"]
+    handle_rows: Int[Array, "h j"]
+    handle_coef: Float[Array, "h j"]
     handle_weight: Float[Array, ""]
     host_key: Int[Array, ""]
     host: _HostSolve = eqx.field(static=True)
@@ -443,8 +448,9 @@ class SparseFactor(AbstractFactor):
     def handle_part(self, targets):
         # Here the constant is the targets' share of the right-hand side, C^T W (U - U_rest).
         n = self.host.size
+        shift = self.handle_weight * self.target_shift(targets)
         return StepData(self.local_targets(self.rest), jnp.zeros((2, n), targets.dtype).at[
-            :, self.handles].add(self.handle_weight * self.target_shift(targets)))
+            :, self.handle_rows].add(self.handle_coef * shift[:, :, None]))
 
     def global_step(self, local, handle_part):
         # A^T W t: scatter each row's weighted target back onto its vertices.
@@ -494,7 +500,8 @@ def sparse_factor(energy: Energy) -> SparseFactor:
         normal_cols=as_int(normal.col),
         normal_values=to_device(normal.data, dtype),
         rest=energy.rest.T,
-        handles=energy.handles,
+        handle_rows=energy.handles,
+        handle_coef=energy.handle_coef,
         handle_weight=jnp.asarray(handle.weight, dtype),
         host_key=to_device(host.key, np.int32),
         host=host,

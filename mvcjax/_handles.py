@@ -84,6 +84,10 @@ class Handles(eqx.Module):
         length: `(r,)` the rest length of its bone (0 for a point handle).
         rigid: `(r,)` whether its bone keeps its length.
         bones: `(b, 2)` each bone's target rows (start, end).
+        active: `(t,)` whether each target row pins anything. A row that does not
+            (a spare pin not yet placed, a pin taken out: `Rig.with_pin`,
+            `Rig.without_pin`) has its pinned rows' coefficients and targets at zero,
+            so that the arrays, and the compiled programs, keep their shapes.
     """
 
     rest: Float[Array, "t 2"]
@@ -93,6 +97,7 @@ class Handles(eqx.Module):
     length: Float[Array, " r"]
     rigid: Bool[Array, " r"]
     bones: Int[Array, "b 2"]
+    active: Bool[Array, " t"]
 
     @property
     def count(self) -> int:
@@ -111,7 +116,8 @@ class Handles(eqx.Module):
                 if rigid[(first == s) & (second == e)].any()]
 
     def pinned_targets(self, targets: Float[Array, "t 2"]) -> Float[Array, "r 2"]:
-        """Where each pinned point goes for these targets (pure JAX)."""
+        """Where each pinned point goes for these targets (pure JAX); zero for the rows of
+        a target row that is not `active`, as their coefficients are."""
         a, b = targets[self.first], targets[self.second]
         along = self.along[:, None]
         d = b - a
@@ -120,7 +126,12 @@ class Handles(eqx.Module):
         turned = d * length_scale(jnp.sum(d * d, axis=1, keepdims=True),
                                   self.length[:, None])
         kept = 0.5 * (a + b) + (along - 0.5) * turned
-        return jnp.where(self.rigid[:, None], kept, stretched)
+        pinned = jnp.where(self.rigid[:, None], kept, stretched)
+        return jnp.where(self.row_active()[:, None], pinned, jnp.zeros_like(pinned))
+
+    def row_active(self) -> Bool[Array, " r"]:
+        """Whether each pinned row pins (both its target rows are `active`)."""
+        return self.active[self.first] & self.active[self.second]
 
 
 def parse_handles(handles) -> tuple[np.ndarray, list[tuple[int, Bone]], list[int]]:
@@ -263,4 +274,5 @@ def make_handles(points, bones, rows, dtype) -> Handles:
         length=to_device(length, dtype),
         rigid=to_device(rigid, bool),
         bones=as_ints(pairs),
+        active=to_device(np.ones(len(points), bool), bool),
     )

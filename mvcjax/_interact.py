@@ -34,7 +34,9 @@ from jaxtyping import Array, Float
 from ._animation import deform_frames
 from ._character import Character, CharacterRenderer
 from ._checks import check_solver
+from ._coordinates import barycentric_coordinates, locate_points
 from ._folds import signed_areas
+from ._pins import with_rows
 from ._render import Renderer, _window, check_drawn_mesh, fit_window, in_window
 from ._rig import Rig
 from ._solvers import DEFAULT_SOLVER, AbstractSolver, FoldFree
@@ -43,10 +45,10 @@ from ._topology import boundary_loops, edges
 _HANDLE_STYLE = {"marker": "o", "markersize": 9, "color": "tab:red", "markeredgecolor": "white",
                  "markeredgewidth": 1.2, "linestyle": "none"}
 # The figure's help line: the mouse and the keys (`Posing._on_key`).
-_HELP = ("drag a red dot · right-click: back to rest · keys: u undo, r reset, "
-         "m mesh, space record")
-_ADD_HINT = ("adding or removing a handle needs a new rig:\n"
-             "mvcjax.Rig.build(shape, handles), then interact again")
+_HELP = ("drag a red dot · click the shape: add a pin · right-click a dot: remove it\n"
+         "keys: u undo, r reset, m mesh, space record")
+_CHARACTER_HINT = ("a character's pins are its handles: adding or removing one needs\n"
+                   "a new character (mvcjax.Character.build), then interact again")
 _FOLD_STYLE = {"facecolor": (0.85, 0.05, 0.05, 0.55), "edgecolor": (0.85, 0.05, 0.05, 0.9),
                "linewidth": 0.6}
 _HINT_COLOR = "#b01010"
@@ -144,17 +146,26 @@ class Posing:
     """A live session posing a rig with the mouse; make one with `mvcjax.interact`.
 
     Press on a red dot (a handle's target) and drag it: the shape follows while the mouse
-    moves. Right-click a dot to put it back at rest. The session keeps what a user wants
+    moves. Click the shape away from the dots to add a pin there (and drag it at once),
+    right-click a dot to remove its pin. The session keeps what a user wants
     to keep: the current `targets`, the pose (`shape_vertices`), and, while recording,
     every pose of a drag (`recorded`, `frames`, `write_animation`). Shape triangles turned
     inside out (a fold) are drawn red while they are, and counted in `folds`.
 
+    Pins come and go without a pause: the session poses the rig with `spare_pins`
+    spare rows (`Rig.with_spare_pins`), and a click places one (`Rig.with_pin`) or
+    takes one out (`Rig.without_pin`), which changes numbers only, never the compiled
+    program.
+
     Attributes:
-        rig: the rig being posed.
+        rig: the rig with the pins as they are now: the rig given, plus a point handle
+            for each pin added (rows after the rig's own), a handle taken out staying
+            as an inactive row (`Rig.active`). `rig.deform(targets)` gives the pose.
+        targets: `(h, 2)` the current targets of `rig` (numpy; a copy is kept by the
+            session).
         renderer: draws the textured picture, or None to draw the shape filled.
         solver: the solver of every update.
         figure, axes: the matplotlib figure and axes it draws in.
-        targets: `(h, 2)` the current targets (numpy; a copy is kept by the session).
         folds: how many shape triangles the current pose turned inside out (their
             orientation is not their rest orientation; `mvcjax.flipped_triangles` of
             the rest and current shape meshes). Counted with or without `show_folds`.
@@ -163,13 +174,15 @@ class Posing:
             folded, or without `show_folds`).
         updates: how many poses were drawn.
         update_seconds: the wall time of each update, from the mouse event to the blit.
+        pin_seconds: the wall time of each pin added or removed, from the click to the
+            blit of the new pose.
     """
 
     def __init__(self, rig: Any, image: Any = None, *, ax: Any = None,
                  solver: Any = DEFAULT_SOLVER, size: Any = None, window: Any = None,
                  margin: Any = 0.3, control_mesh: Any = True, record: Any = False,
                  pick_radius: Any = 12.0, renderer: Any = None, show_folds: Any = True,
-                 **render_options: Any):
+                 spare_pins: Any = 8, **render_options: Any):
         import matplotlib.pyplot as plt
 
         if not isinstance(rig, (Rig, Character)):
@@ -186,19 +199,28 @@ class Posing:
         if ax is not None and not hasattr(ax, "transData"):
             raise TypeError(f"ax must be matplotlib axes (e.g. plt.subplots()[1]), got "
                             f"{type(ax).__name__}.")
-        self.rig, self.solver = rig, solver
+        if isinstance(spare_pins, bool) or not (isinstance(spare_pins, (int, np.integer))
+                                                and spare_pins >= 0):
+            raise ValueError(f"spare_pins must be a whole number >= 0 (how many pins a click "
+                             f"can add), got {spare_pins!r}.")
+        self._given, self.solver = rig, solver
+        # A character's parts are rigs of their own: it keeps the handles it was built with.
+        self._own_rows = rig.handles.count
+        self._rig = (rig.with_spare_pins(int(spare_pins))
+                     if spare_pins and isinstance(rig, Rig) else rig)
+        self._kept: tuple[Any, Rig | Character] | None = None
         self._control_mesh_wanted = bool(control_mesh)
         self.show_folds = bool(show_folds)
         rest = np.asarray(rig.shape_mesh.vertices, np.float64)
         self._faces = np.asarray(rig.shape_mesh.faces, np.int64)
         rest_sign = np.sign(_signed_areas(rest, self._faces)).astype(np.int8)
-        self._rest_targets = np.asarray(rig.handle_positions, np.float64)
+        given_rest = np.asarray(rig.handle_positions, np.float64)
         if window is None:
             window = (renderer.window if renderer is not None
-                      else fit_window(np.concatenate([rest, self._rest_targets]),
+                      else fit_window(np.concatenate([rest, given_rest]),
                                       size, margin=margin))
         self.window = tuple(float(w) for w in _window(window, "window"))
-        self._check_in_view()
+        self._check_in_view(given_rest)
         if ax is None:
             _, ax = plt.subplots(figsize=(6, 6))
         self.axes, self.figure = ax, ax.figure
@@ -215,8 +237,10 @@ class Posing:
         renderer = renderer.mesh if isinstance(renderer, CharacterRenderer) else renderer
         if renderer is not None:
             check_drawn_mesh(renderer, rig.shape_mesh.vertices, rig.shape_mesh.faces)
-        # The rig, renderer and solver are constants of the session's one program.
-        self._pose = jax.jit(lambda t: _pose(rig, renderer, solver, rest_sign, t))
+        # The renderer and solver are constants of the session's one program; the rig is
+        # an argument, so that a pin placed or taken out (new numbers, the same shapes)
+        # runs the same program.
+        self._pose = jax.jit(lambda r, t: _pose(r, renderer, solver, rest_sign, t))
         self._dtype = np.dtype(rig.handles.rest.dtype)
         self._pick_radius = float(pick_radius)
         self._bones = np.asarray(rig.handles.bones, np.int64).reshape(-1, 2)
@@ -225,15 +249,17 @@ class Posing:
         self._outline_index = np.concatenate([np.append(loop, loop[0]) for loop in self._loops])
         self._control_edges = edges(np.asarray(rig.control_mesh.faces))
 
-        self.targets = self._rest_targets.copy()
-        self.updates, self.update_seconds = 0, []
+        self._all = np.asarray(self._rig.handle_positions, np.float64).copy()
+        self.updates, self.update_seconds, self.pin_seconds = 0, [], []
         self._dragged: int | None = None
-        self._history: list[np.ndarray] = []  # the targets before each move, for undo
+        # The targets and the rig before each move, for undo.
+        self._history: list[tuple[np.ndarray, Rig | Character]] = []
         self._background = None
         self._recording, self._recorded, self._times = bool(record), [], []
+        self._recorded_rigs: list[Rig | Character] = []
 
         self._draw_static(rest)
-        self._solve(self.targets)
+        self._solve()
         self._draw_pose()
         canvas = self.figure.canvas
         self._connections = [
@@ -247,6 +273,39 @@ class Posing:
             self._record()
 
     # ---- what the user keeps -----------------------------------------------------------
+
+    @property
+    def _rig(self) -> Rig | Character:
+        return self._session_rig
+
+    @_rig.setter
+    def _rig(self, rig: Rig | Character) -> None:
+        # The rows that pin, on the host: read at every update.
+        self._session_rig, self._active = rig, np.asarray(rig.handles.active)
+
+    def _rows(self) -> np.ndarray:
+        """The session's target rows that `rig` and `targets` hold: the given rig's,
+        then each spare pin placed."""
+        active = self._active
+        return np.concatenate([np.arange(self._own_rows),
+                               self._own_rows + np.flatnonzero(active[self._own_rows:])])
+
+    @property
+    def rig(self) -> Rig | Character:
+        if self._rig is self._given:
+            return self._given
+        if self._kept is None or self._kept[0] is not self._rig:
+            rows = self._rows()
+            if len(rows) == self._own_rows and self._active[:self._own_rows].all():
+                kept = self._given  # nothing added, nothing taken out
+            else:
+                kept = with_rows(self._rig, rows)
+            self._kept = (self._rig, kept)
+        return self._kept[1]
+
+    @property
+    def targets(self) -> np.ndarray:
+        return self._all[self._rows()]
 
     @property
     def shape_vertices(self) -> np.ndarray:
@@ -274,16 +333,17 @@ class Posing:
         if on and not self._recorded:
             self._record()
 
-    def recorded(self, fps: Any = None) -> np.ndarray:
-        """`(frames, h, 2)` the recorded targets: one per update, or, with `fps`, sampled
-        at that rate from the recording's times (linear in between), so that an
-        animation replays the drag at the speed it was made."""
+    def _recorded_all(self, fps: Any) -> tuple[np.ndarray, list]:
+        """The recorded targets of every session row (a pin's rows hold its rest
+        position while it pinned nothing) and the rig of each, sampled at `fps`."""
         if not self._recorded:
             raise ValueError("nothing was recorded: call posing.record() (or interact(..., "
                              "record=True)) before dragging.")
-        targets = np.stack(self._recorded)
+        rest = np.asarray(self._rig.handle_positions, np.float64)
+        targets = np.stack([np.where(np.asarray(rig.handles.active)[:, None], t, rest)
+                            for t, rig in zip(self._recorded, self._recorded_rigs)])
         if fps is None:
-            return targets
+            return targets, list(self._recorded_rigs)
         if isinstance(fps, bool) or not (isinstance(fps, (int, float)) and fps > 0):
             raise ValueError(f"fps must be a positive number of frames per second, got {fps!r}.")
         times = np.asarray(self._times) - self._times[0]
@@ -291,13 +351,32 @@ class Posing:
         at = np.arange(count) / fps
         flat = targets.reshape(len(targets), -1)
         sampled = np.stack([np.interp(at, times, column) for column in flat.T], axis=1)
-        return sampled.reshape(count, *targets.shape[1:])
+        # Each frame posed with the pins of the last update at or before it.
+        last = np.searchsorted(times, at, side="right") - 1
+        return (sampled.reshape(count, *targets.shape[1:]),
+                [self._recorded_rigs[k] for k in last])
+
+    def recorded(self, fps: Any = None) -> np.ndarray:
+        """`(frames, h, 2)` the recorded targets of `rig` (the pins as they are now): one
+        per update, or, with `fps`, sampled at that rate from the recording's times
+        (linear in between), so that an animation replays the drag at the speed it was
+        made. A pin added during the recording holds its rest position before it."""
+        return self._recorded_all(fps)[0][:, self._rows()]
 
     def frames(self, fps: Any = None) -> Float[Array, "frames n 2"]:
-        """`(frames, n, 2)` the recorded poses of the shape mesh (`deform_frames` of
-        `recorded(fps)`), ready for `Renderer.frames` and `mvcjax.export`."""
-        frames = deform_frames(self.rig, self.recorded(fps).astype(self._dtype), self.solver)
-        return jnp.concatenate(frames, axis=1) if isinstance(frames, tuple) else frames
+        """`(frames, n, 2)` the recorded poses of the shape mesh, each with the pins it
+        was made with (`deform_frames` of the recorded targets), ready for
+        `Renderer.frames` and `mvcjax.export`."""
+        targets, rigs = self._recorded_all(fps)
+        runs, start = [], 0
+        for end in range(1, len(rigs) + 1):
+            if end == len(rigs) or rigs[end] is not rigs[start]:
+                frames = deform_frames(rigs[start], targets[start:end].astype(self._dtype),
+                                       self.solver)
+                runs.append(jnp.concatenate(frames, axis=1) if isinstance(frames, tuple)
+                            else frames)
+                start = end
+        return jnp.concatenate(runs)
 
     def write_animation(self, path: Any, *, fps: Any = 30, renderer: Any = None,
                         **options: Any) -> None:
@@ -310,33 +389,80 @@ class Posing:
 
         renderer = renderer if renderer is not None else self.renderer
         if renderer is None:
-            mesh = self.rig.shape_mesh
+            mesh = self._given.shape_mesh
             renderer = Renderer.build((mesh.vertices, mesh.faces), window=self.window)
         if isinstance(renderer, CharacterRenderer):
             renderer = renderer.mesh
         write_animation(path, renderer.frames(self.frames(fps)), fps=fps, **options)
 
     def set_targets(self, targets: Any) -> None:
-        """Move every target at once (e.g. from code, or to replay a pose) and redraw."""
+        """Move every target of `rig` at once (e.g. from code, or to replay a pose) and
+        redraw."""
         targets = np.asarray(targets, np.float64)
-        if targets.shape != self.targets.shape or not np.all(np.isfinite(targets)):
-            raise ValueError(f"targets must be {self.targets.shape}, finite (x, y) per handle, "
+        rows = self._rows()
+        if targets.shape != (len(rows), 2) or not np.all(np.isfinite(targets)):
+            raise ValueError(f"targets must be {(len(rows), 2)}, finite (x, y) per handle, "
                              f"got shape {targets.shape}.")
-        self.targets = targets.copy()
+        self._all[rows] = targets
         self._update()
 
+    def _remember(self) -> None:
+        self._history.append((self._all.copy(), self._rig))
+
     def reset(self) -> None:
-        """Every target back at rest (undone by `undo`)."""
-        self._history.append(self.targets.copy())
-        self.set_targets(self._rest_targets)
+        """Every target back at rest, the pins where they are (undone by `undo`)."""
+        self._remember()
+        self._all = np.asarray(self._rig.handle_positions, np.float64).copy()
+        self._update()
 
     def undo(self) -> bool:
-        """Take back the last move (a drag, a right-click, a reset): the targets as they
-        were before it. False if there is nothing to take back."""
+        """Take back the last move (a drag, a pin added or removed, a reset): the
+        targets and pins as they were before it. False if there is nothing to take
+        back."""
         if not self._history:
             return False
-        self.set_targets(self._history.pop())
+        self._all, self._rig = self._history.pop()
+        self._update()
         return True
+
+    def add_pin(self, point: Any) -> int:
+        """Pin the shape where it is at `point` in the current pose (what a click on the
+        shape does), and return the pin's row in the session (`rig` and `targets` hold
+        it last). The pose stays as it is; the pin holds that spot of the shape."""
+        if not isinstance(self._rig, Rig) or self._rig is self._given:
+            raise ValueError("this session has no spare pins: interact(rig, spare_pins=8) "
+                             "with an mvcjax.Rig adds pins by click (a Character's pins "
+                             "are the handles it was built with).")
+        free = np.flatnonzero(~self._active[self._own_rows:])
+        if not len(free):
+            raise ValueError(f"all {self._rig.handles.count - self._own_rows} spare pins are "
+                             "placed: remove one (right-click it), or interact(..., "
+                             "spare_pins=more).")
+        row = self._own_rows + int(free[0])
+        point = np.asarray(point, np.float64)
+        at_rest = self._at_rest(point)
+        if at_rest is None:
+            raise ValueError(f"point {point.tolist()} is not on the shape as it is posed; "
+                             "click on the shape to add a pin.")
+        rig = self._rig.with_pin(row, at_rest)
+        self._remember()
+        self._rig = rig
+        # Its target: where the pin's spot of the control mesh is now, which the pose
+        # already meets (the pose stays the minimum), a hair from `point`.
+        pinned = int(np.flatnonzero(np.asarray(rig.handles.first) == row)[0])
+        index = np.asarray(rig.energy.handles)[pinned]
+        coef = np.asarray(rig.energy.handle_coef, np.float64)[pinned]
+        self._all[row] = coef @ np.asarray(self._control_vertices, np.float64)[index]
+        self._update()
+        return row
+
+    def remove_pin(self, row: Any) -> None:
+        """Take out the pin of session row `row` (for a bone's end, the bone): what a
+        right-click on its dot does."""
+        rig = self._rig.without_pin(row)
+        self._remember()
+        self._rig = rig
+        self._update()
 
     def toggle_mesh(self) -> None:
         """Show or hide the control mesh drawn over a filled shape."""
@@ -356,8 +482,8 @@ class Posing:
 
     # ---- drawing -------------------------------------------------------------------------
 
-    def _check_in_view(self) -> None:
-        if not in_window(self._rest_targets, self.window).any():
+    def _check_in_view(self, rest: np.ndarray) -> None:
+        if not in_window(rest, self.window).any():
             raise ValueError(f"no handle of the rig lies in the window {self.window}, so none "
                              "can be dragged; leave window= out (it then holds the shape and "
                              "its handles) or pass one that holds them, e.g. "
@@ -419,8 +545,9 @@ class Posing:
             ax.add_artist(self._fold_hint)
         self._hinted_folds, self.hint = 0, ""
 
-    def _solve(self, targets: np.ndarray) -> None:
-        pose = jax.block_until_ready(self._pose(jnp.asarray(targets.astype(self._dtype))))
+    def _solve(self) -> None:
+        pose = jax.block_until_ready(
+            self._pose(self._rig, jnp.asarray(self._all.astype(self._dtype))))
         self._control_vertices, self._shape, self._picture, self._flipped, folds = pose
         self.folds = int(folds)
 
@@ -456,8 +583,9 @@ class Posing:
         if self._control is not None:
             self._control.set_data(*_segments(np.asarray(self._control_vertices),
                                               self._control_edges))
-        self._handles.set_data(self.targets[:, 0], self.targets[:, 1])
-        self._bone_line.set_data(*_segments(self.targets, self._bones))
+        active = self._active
+        self._handles.set_data(self._all[active, 0], self._all[active, 1])
+        self._bone_line.set_data(*_segments(self._all, self._bones[active[self._bones[:, 0]]]))
         if self.show_folds:
             self._draw_folds()
 
@@ -478,7 +606,7 @@ class Posing:
 
     def _update(self) -> None:
         start = time.perf_counter()
-        self._solve(self.targets)
+        self._solve()
         self._draw_pose()
         self._blit()
         self.update_seconds.append(time.perf_counter() - start)
@@ -487,7 +615,8 @@ class Posing:
             self._record()
 
     def _record(self) -> None:
-        self._recorded.append(self.targets.copy())
+        self._recorded.append(self._all.copy())
+        self._recorded_rigs.append(self._rig)
         self._times.append(time.perf_counter())
 
     # ---- mouse -----------------------------------------------------------------------------
@@ -501,35 +630,71 @@ class Posing:
                 self.axes.draw_artist(artist)
 
     def _nearest(self, event) -> int | None:
-        """The target under the mouse (within `pick_radius` screen pixels), or None."""
-        screen = self.axes.transData.transform(self.targets)
+        """The session row of the dot under the mouse (within `pick_radius` screen
+        pixels), or None."""
+        rows = np.flatnonzero(self._active)
+        screen = self.axes.transData.transform(self._all[rows])
         distance = np.hypot(screen[:, 0] - event.x, screen[:, 1] - event.y)
         best = int(np.argmin(distance))
-        return best if distance[best] <= self._pick_radius else None
+        return int(rows[best]) if distance[best] <= self._pick_radius else None
 
     def _on_press(self, event) -> None:
         if event.inaxes is not self.axes or self._toolbar_busy():
             return
         picked = self._nearest(event)
-        if event.button == 3:
-            if picked is None:
-                self._status.set_text(_ADD_HINT)
-                self._blit()
-            else:
-                self._history.append(self.targets.copy())
-                self.targets[picked] = self._rest_targets[picked]
-                self._update()
-            return
-        if event.button == 1 and picked is not None:
-            self._history.append(self.targets.copy())
+        start = time.perf_counter()
+        if event.button == 3 and picked is not None:
+            try:
+                self.remove_pin(picked)
+            except ValueError as error:  # the last pin
+                self._say(str(error).split(";")[0] + ": add another pin first")
+                return
+            self.pin_seconds.append(time.perf_counter() - start)
+        elif event.button == 1 and picked is not None:
+            self._remember()
             self._dragged = picked
-            self._status.set_text("")  # a hint goes with the next drag
+            self._status.set_text("")  # a hint goes with the drag's first update
+        elif event.button == 1 and event.xdata is not None:
+            self._add_pin_at(np.array([event.xdata, event.ydata]), start)
+        elif event.button == 3:
+            self._say(_HELP if isinstance(self._rig, Rig) else _CHARACTER_HINT)
+
+    def _add_pin_at(self, point: np.ndarray, start: float) -> None:
+        if not isinstance(self._rig, Rig) or self._rig is self._given:
+            self._say(_CHARACTER_HINT if isinstance(self._rig, Character) else
+                      "pins by click need spare pins: interact(rig, spare_pins=8)")
+            return
+        if self._at_rest(point) is None:
+            return  # a click beside the shape
+        try:
+            row = self.add_pin(point)
+        except ValueError as error:  # every spare pin placed
+            self._say(str(error))
+            return
+        self.pin_seconds.append(time.perf_counter() - start)
+        self._dragged = row  # press, then drag: the new pin follows at once
+        self._remember()
+
+    def _at_rest(self, point: np.ndarray) -> np.ndarray | None:
+        """Where the spot of the posed shape at `point` lies at rest, or None off the
+        shape."""
+        posed = np.asarray(self._shape, np.float64)
+        face, depth = locate_points(point[None], posed, self._faces)
+        if depth[0] < 0:
+            return None
+        corners = self._faces[face[0]]
+        bary = barycentric_coordinates(point[None], posed[corners][None])[0]
+        return bary @ np.asarray(self._given.shape_mesh.vertices, np.float64)[corners]
+
+    def _say(self, text: str) -> None:
+        self._status.set_text(text)
+        self._blit()
 
     def _on_motion(self, event) -> None:
         if self._dragged is None or event.inaxes is not self.axes or event.xdata is None:
             return
-        self.targets[self._dragged] = self._dragged_to(self._dragged,
-                                                       np.array([event.xdata, event.ydata]))
+        self._all[self._dragged] = self._dragged_to(self._dragged,
+                                                    np.array([event.xdata, event.ydata]))
         self._update()
 
     def _dragged_to(self, row: int, mouse: np.ndarray) -> np.ndarray:
@@ -539,14 +704,14 @@ class Posing:
         other, length = self._pivot.get(row, (None, 0.0))
         if other is None:
             return mouse
-        offset = mouse - self.targets[other]
+        offset = mouse - self._all[other]
         distance = float(np.hypot(*offset))
         if distance == 0:
-            return self.targets[row]
-        return self.targets[other] + offset * (length / distance)
+            return self._all[row]
+        return self._all[other] + offset * (length / distance)
 
     def _on_release(self, event) -> None:
-        if self._dragged is not None and np.array_equal(self._history[-1], self.targets):
+        if self._dragged is not None and np.array_equal(self._history[-1][0], self._all):
             self._history.pop()  # a click that moved nothing is no move to undo
         self._dragged = None
 
@@ -554,8 +719,7 @@ class Posing:
         key = (event.key or "").lower()
         if key in ("u", "ctrl+z", "cmd+z"):
             if not self.undo():
-                self._status.set_text("nothing to undo")
-                self._blit()
+                self._say("nothing to undo")
         elif key == "r":
             self.reset()
         elif key == "m":
@@ -664,7 +828,7 @@ def _can_blit(canvas) -> bool:
 def interact(rig: Any, image: Any = None, *, ax: Any = None, solver: Any = DEFAULT_SOLVER,
              size: Any = None, window: Any = None, margin: Any = 0.3,
              control_mesh: Any = True, record: Any = False, pick_radius: Any = 12.0,
-             renderer: Any = None, show_folds: Any = True,
+             renderer: Any = None, show_folds: Any = True, spare_pins: Any = 8,
              **render_options: Any) -> Posing:
     """Pose `rig` with the mouse: a figure in which dragging a handle moves the shape.
 
@@ -672,9 +836,12 @@ def interact(rig: Any, image: Any = None, *, ax: Any = None, solver: Any = DEFAU
     while the mouse moves. Keys: `u` undo, `r` reset, `m` show or hide the control mesh,
     space start or stop recording. Dragging one end of a rigid bone turns the bone about its
     other end, which stays on its dot (the dragged end follows the mouse's direction at
-    the bone's length); a stretchy bone's ends move independently. Right-click a dot to
-    send it back to rest. Adding or removing a handle changes the control mesh, so it
-    needs a new rig: `Rig.build(shape, handles)`, then `interact` again. Where the pose
+    the bone's length); a stretchy bone's ends move independently. Click the shape away
+    from the dots to add a pin there (keep the button down to drag it at once);
+    right-click a dot to remove its pin (a bone's end: the bone). Pins come and go
+    without rebuilding the meshes or compiling anything (`Rig.with_pin`), up to
+    `spare_pins` added pins at a time; `posing.rig` is the rig with the pins as they
+    are. Where the pose
     folds the shape (triangles turned inside out), those triangles are drawn red and a
     hint counts them, while they are folded.
 
@@ -703,6 +870,8 @@ def interact(rig: Any, image: Any = None, *, ax: Any = None, solver: Any = DEFAU
         renderer: a `Renderer` built for this rig, instead of `image` and its options.
         show_folds: draw the folded shape triangles red over the shape, with a hint that
             counts them; False draws neither (`Posing.folds` still counts them).
+        spare_pins: how many pins a click can add (`Rig.with_spare_pins`); 0 for
+            none. A `Character` keeps the handles it was built with.
         **render_options: more options of `Renderer.build` (`fill`, `alpha`, `depth`...).
 
     Returns:
@@ -711,4 +880,5 @@ def interact(rig: Any, image: Any = None, *, ax: Any = None, solver: Any = DEFAU
     """
     return Posing(rig, image, ax=ax, solver=solver, size=size, window=window, margin=margin,
                   control_mesh=control_mesh, record=record, pick_radius=pick_radius,
-                  renderer=renderer, show_folds=show_folds, **render_options)
+                  renderer=renderer, show_folds=show_folds, spare_pins=spare_pins,
+                  **render_options)

@@ -307,6 +307,16 @@ class Renderer(JittableModule):
             return CharacterRenderer.build(mesh, image, window=window, size=size,
                                            background=background, antialias=antialias,
                                            alpha=alpha, budget=budget, dtype=dtype)
+        return cls._from_arrays(**cls._prepared(
+            mesh, image, size=size, window=window, image_window=image_window, fill=fill,
+            background=background, depth=depth, antialias=antialias, alpha=alpha,
+            budget=budget, dtype=dtype))
+
+    @classmethod
+    def _prepared(cls, mesh, image, *, size, window, image_window, fill, background, depth,
+                  antialias, alpha, budget, dtype) -> dict:
+        """`build`'s arguments checked and turned into `_from_arrays`' host arrays (a
+        layered character's renderer lays its parts' out as one mesh)."""
         vertices, faces = _mesh_of(mesh)
         if dtype is None:
             # The mesh's float type, as JAX has it (float64 only with x64 enabled).
@@ -342,10 +352,10 @@ class Renderer(JittableModule):
         faces = faces[order]
         if alpha not in ("mesh", "picture"):
             raise ValueError(f"alpha must be 'mesh' or 'picture', got {alpha!r}.")
-        return cls._from_arrays(vertices, faces, texture_points, _texture(picture, alpha),
-                               window, (rows, cols), level=to_device(level, np.int32),
-                               budget=budget, background=background, antialias=antialias,
-                               see_through=alpha == "picture", dtype=dtype)
+        return dict(vertices=vertices, faces=faces, texture_points=texture_points,
+                    texture=_texture(picture, alpha), window=window, size=(rows, cols),
+                    level=to_device(level, np.int32), budget=budget, background=background,
+                    antialias=antialias, see_through=alpha == "picture", dtype=dtype)
 
     @classmethod
     def _from_arrays(cls, vertices, faces, texture_points, texture, window,
@@ -985,14 +995,16 @@ def depth_from_handles(rig: Any, depths: Any) -> Float[np.ndarray, " n"]:
                          f"(a point handle has one, a bone two), got shape {depths.shape}.")
     n = rig.shape_mesh.vertices.shape[0]
     graph = _edge_graph(rig.shape_mesh.vertices, rig.shape_mesh.faces)
-    pinned = np.asarray(rig.shape_mesh.handles)
+    # Rows that pin nothing (spare pins, pins taken out) give no depth.
+    pins = np.asarray(rig.handles.row_active())
+    pinned = np.asarray(rig.shape_mesh.handles)[pins]
     _, _, nearest = scipy.sparse.csgraph.dijkstra(graph, directed=False,
                                                   indices=pinned, min_only=True,
                                                   return_predecessors=True)
     handles = rig.handles
-    along = np.asarray(handles.along)
-    row_depth = ((1 - along) * depths[np.asarray(handles.first)]
-                 + along * depths[np.asarray(handles.second)])
+    along = np.asarray(handles.along)[pins]
+    row_depth = ((1 - along) * depths[np.asarray(handles.first)[pins]]
+                 + along * depths[np.asarray(handles.second)[pins]])
     # A vertex pinned by several rows (bones sharing a joint) keeps the last one's depth.
     by_vertex = np.zeros(n)
     by_vertex[pinned] = row_depth

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from . import _coordinates as coords, _meshing as meshing, _topology as topology
+from . import _coordinates as coords, _meshing as meshing, _pins, _topology as topology
 from ._checks import (
     as_array,
     as_points,
@@ -415,6 +415,34 @@ class Rig(JittableModule):
         factor = self.factor.rebuild(energy)
         return eqx.tree_at(lambda r: (r.energy, r.factor), self, (energy, factor))
 
+    def with_spare_pins(self, count: Any) -> Rig:
+        """The same rig with `count` spare pins: target rows, after the handles', that pin
+        nothing until placed (`with_pin`). Place and take out pins on the result as
+        often as you like: the arrays keep their shapes, so nothing is compiled again
+        (this call itself makes a rig of new shapes). The targets then have `count`
+        more rows; an inactive row's target is ignored (any finite value)."""
+        return _pins.with_spare_pins(self, count)
+
+    def with_pin(self, row: Any, point: Any) -> Rig:
+        """The same rig with target row `row` (a spare pin, or a point handle) pinning
+        the shape at rest point `point`, `(x, y)` on or inside the shape. The pin holds
+        the control triangle under `point` by its barycentric coordinates; the meshes
+        stay, and only the factor is recomputed (no recompilation). Needs room for such
+        rows: call `with_spare_pins` first."""
+        return _pins.with_pin(self, row, point)
+
+    def without_pin(self, row: Any) -> Rig:
+        """The same rig with target row `row` pinning nothing (for an end of a bone,
+        the whole bone); the row stays, ignored, until `with_pin` places it again.
+        Refused for the last pin (nothing would hold the shape)."""
+        return _pins.without_pin(self, row)
+
+    @property
+    def active(self) -> np.ndarray:
+        """`(h,)` bool: which rows of the targets pin (all, but for spare pins not yet
+        placed and pins taken out)."""
+        return np.asarray(self.handles.active)
+
     def _check_init(self, init: Any) -> Any:
         """`init`: a start's name, or `(c, 2)` finite control vertices (checked on the
         host where concrete, when run where traced)."""
@@ -565,7 +593,8 @@ class Rig(JittableModule):
     def __repr__(self) -> str:
         cm = self.control_mesh
         bones = self.handles.bones.shape[0]
-        handles = self.handles.count - bones  # a bone takes two rows of targets
+        idle = int((~self.active).sum())
+        handles = self.handles.count - bones - idle  # a bone takes two rows of targets
         return (
             f"Rig(shape mesh: {self.shape_mesh.vertices.shape[0]} vertices, "
             f"{self.shape_mesh.faces.shape[0]} faces; control mesh: "
@@ -573,6 +602,8 @@ class Rig(JittableModule):
             f"{cm.inner.shape[0]} inner), {handles} handles"
             + (f" ({bones} bones; {self.handles.count} targets, {cm.handles.shape[0]} pinned "
                "vertices)" if bones else "")
+            + (f", {idle} target rows pinning nothing (spare pins, pins taken out)"
+               if idle else "")
             + ")"
         )
 
@@ -586,7 +617,7 @@ def solve_in_frame(rig: Rig, targets, solver: AbstractSolver, init):
     vertices, info = solver.solve_skinned(rig.energy, rig.factor, pinned,
                                           rig._local_start(local, init), shape)
     energy = rig.energy
-    miss = jnp.sqrt(jnp.max(jnp.sum((vertices[energy.handles] - pinned) ** 2, axis=1)))
+    miss = jnp.sqrt(jnp.max(jnp.sum((energy.handle_points(vertices) - pinned) ** 2, axis=1)))
     info = eqx.tree_at(
         lambda i: (i.inverted, i.handle_miss), info,
         (inverted_count(vertices, energy.faces, energy.rest), miss * rig.frame.scale),
@@ -646,7 +677,8 @@ def _energy_data(vertices, faces, loops, inner, handles, weights, dtype) -> Ener
         mvc_weight=_array(ring_weight, dtype),
         edges=_ints(edges),
         edge_length=_array(edge_length, dtype),
-        handles=_ints(handles),
+        handles=_ints(np.asarray(handles)[:, None]),
+        handle_coef=_array(np.ones((len(handles), 1)), dtype),
         faces=_ints(faces),
         weights=weights.astype(dtype),
         scale=_array(1.0, dtype),

@@ -71,12 +71,14 @@ def handle_turns(handles: Handles, targets: Float[Array, "t 2"],
                  common: Float[Array, ""]) -> Float[Array, " r"]:
     """The angle each pinned row turns through: its bone's, from the bone's rest
     direction to the direction of its targets, taken within half a turn of `common`
-    (the handles' rigid turn), or `common` itself for a point handle."""
+    (the handles' rigid turn), or `common` itself for a point handle (and for a row
+    that pins nothing)."""
     # A point handle, or a bone dragged to one point, has no direction: it turns with
     # the rest (a stand-in direction keeps the gradients finite).
     d = targets[handles.second] - targets[handles.first]
     rest = handles.rest[handles.second] - handles.rest[handles.first]
-    bone = (handles.first != handles.second) & (jnp.sum(d * d, axis=1) > 0)
+    bone = ((handles.first != handles.second) & (jnp.sum(d * d, axis=1) > 0)
+            & handles.row_active())
     d = jnp.where(bone[:, None], d, jnp.ones_like(d))
     rest = jnp.where(bone[:, None], rest, jnp.ones_like(rest))
     turn = jnp.arctan2(d[:, 1], d[:, 0]) - jnp.arctan2(rest[:, 1], rest[:, 0])
@@ -94,7 +96,8 @@ def turned_start(
     """The turned start for `targets` (the rig's frame, one row per target): see the
     module's docstring."""
     pinned = handles.pinned_targets(targets)
-    rot, _ = rigid_alignment(energy.rest[energy.handles], pinned)
+    rot, _ = rigid_alignment(energy.handle_points(energy.rest), pinned,
+                             energy.handle_presence())
     common = jnp.arctan2(rot[1, 0], rot[0, 0])
     angle = weights @ handle_turns(handles, targets, common)
     # A row's angle: the mean of its vertices', weighted as the row weighs them.

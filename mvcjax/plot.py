@@ -41,15 +41,19 @@ def plot_outline(rig, ax=None, vertices=None, **kwargs):
 def _draw_handles(ax, rig, pinned, targets):
     """Pinned vertices as red dots, bones as red segments through them, targets as
     crosses (a bone's two targets joined by a dashed line)."""
+    # Rows that pin nothing (spare pins, pins taken out) are not drawn.
+    pins, active = np.asarray(rig.handles.row_active()), np.asarray(rig.handles.active)
+    first = np.asarray(rig.handles.first)[pins]
+    pinned = pinned[pins]
+    bones = [bone for bone in np.asarray(rig.handles.bones) if active[bone[0]]]
     ax.plot(pinned[:, 0], pinned[:, 1], "o", color="tab:red", markersize=5, label="handles")
-    first = np.asarray(rig.handles.first)
-    for start, _ in np.asarray(rig.handles.bones):
+    for start, _ in bones:
         on = pinned[first == start]
         ax.plot(on[:, 0], on[:, 1], "-", color="tab:red", linewidth=3, solid_capstyle="round")
     if targets is not None:
         t = np.asarray(targets)
-        ax.plot(t[:, 0], t[:, 1], "x", color="k", markersize=7, label="targets")
-        for bone in np.asarray(rig.handles.bones):
+        ax.plot(t[active, 0], t[active, 1], "x", color="k", markersize=7, label="targets")
+        for bone in bones:
             ax.plot(t[bone, 0], t[bone, 1], "--", color="k", linewidth=0.8)
 
 

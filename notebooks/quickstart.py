@@ -74,8 +74,9 @@ plt.show()
 # %% [markdown]
 # ## Drag them with the mouse
 # `mvcjax.interact(rig)` opens a figure in which every handle's target is a red dot:
-# press on one and drag, and the horse follows while the mouse moves (a right-click
-# puts a dot back). In Jupyter it needs ipympl: `pip install 'mvcjax[widget]'`, then run
+# press on one and drag, and the horse follows while the mouse moves. A click on the
+# horse adds a pin there, a right-click on a dot removes it, without a pause. In
+# Jupyter it needs ipympl: `pip install 'mvcjax[widget]'`, then run
 # `%matplotlib widget` in a cell first; in a script, a desktop window opens at
 # `plt.show()`. This notebook was run with the inline backend, which stores a still
 # picture, so the cell below moves the targets from code instead of the mouse.

@@ -172,8 +172,8 @@ def test_steps_of_many_frames_match_single_steps(ring_shape, weights):
     rng = np.random.default_rng(0)
     rest = factor.rest.T
     frames = rest[None] + jnp.asarray(rng.normal(scale=0.02, size=(3, *rest.shape)))
-    targets = rest[factor.handles][None] + jnp.asarray(
-        rng.normal(scale=0.05, size=(3, factor.handles.shape[0], 2)))
+    targets = rest[factor.handle_rows[:, 0]][None] + jnp.asarray(
+        rng.normal(scale=0.05, size=(3, factor.handle_rows.shape[0], 2)))
     data = factor.handle_part_frames(targets)
     many = factor.step_frames(jnp.moveaxis(frames, 0, -1), data)
     for k in range(3):

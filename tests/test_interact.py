@@ -121,17 +121,88 @@ def test_moves_after_release_or_away_from_handles_change_nothing(horse_rig32):
     assert posing.updates == 1
 
 
-def test_right_click_puts_a_handle_back_and_explains_adding_one(horse_rig32):
+def shape_point_away_from_handles(rig, seed=0):
+    """A shape-mesh vertex inside the horse, far from every handle and the outline."""
+    v = np.asarray(rig.shape_mesh.vertices, np.float64)
+    loops = mvcjax._topology.boundary_loops(np.asarray(rig.shape_mesh.faces))
+    handles = np.asarray(rig.handle_positions)
+    far = np.min(np.linalg.norm(v[:, None] - handles[None], axis=2), axis=1)
+    ok = np.setdiff1d(np.flatnonzero(far > 60.0), np.concatenate(loops))
+    return int(np.random.default_rng(seed).choice(ok))
+
+
+def test_a_click_adds_a_pin_and_a_right_click_removes_one_without_compiling(horse_rig32):
     posing = started(mvcjax.interact(horse_rig32))
     rest = posing.targets.copy()
-    drag(posing, HEAD, [rest[HEAD] + 15.0])
+    drag(posing, HEAD, [rest[HEAD] + 5.0])  # compiled by now
+    vertex = shape_point_away_from_handles(horse_rig32)
+    point = np.asarray(horse_rig32.shape_mesh.vertices)[vertex].astype(np.float64)
+    before = posing.shape_vertices.copy()
+    seen = []  # what the figure showed after each mouse event: checked afterwards
+
+    def shown():  # the session's own rig: its spare rows are all there
+        seen.append((posing._all.copy(), posing.shape_vertices.copy(), posing._rig))
+
+    with Compilations() as compiled:
+        mouse(posing, "button_press", point)  # a pin there, and dragged at once
+        shown()
+        mouse(posing, "motion_notify", point + [25.0, 10.0])
+        mouse(posing, "button_release", point + [25.0, 10.0])
+        shown()
+        mouse(posing, "button_press", posing.targets[HEAD], button=3)  # the head's pin out
+        shown()
+        mouse(posing, "button_press", rest[0] + [300.0, 300.0])  # beside the shape: nothing
+        shown()
+    assert compiled.count == 0
+    (_, pinned, _), (_, moved, _), (_, freed, rig_freed), last = seen
+    assert len(posing.targets) == 6 and posing.rig.handles.count == 6
+    # Pinned where it is: the pose stays the energy's minimum (test_pins); the default
+    # solver's 100 steps take another path to it, ending a little apart.
+    np.testing.assert_allclose(pinned, before, rtol=0, atol=0.2)
+    for targets, vertices, rig in seen[1:]:
+        np.testing.assert_allclose(vertices, rig.deform(targets), **POSE)
+    np.testing.assert_allclose(posing.targets[5], point + [25.0, 10.0], **TARGET)
+    assert np.linalg.norm(moved[vertex] - (point + [25.0, 10.0])) < 2.0
+    assert rig_freed.active[:6].tolist() == [True] * 4 + [False, True]
+    assert posing.rig.active.tolist() == [True] * 4 + [False, True]
+    np.testing.assert_allclose(freed, posing.rig.deform(posing.targets), **POSE)
+    assert not np.allclose(freed, moved, atol=1.0)
+    np.testing.assert_array_equal(last[1], freed)
+    assert len(posing.pin_seconds) == 2
+    assert posing._pose._cache_size() == 1
+    key(posing, "u")  # the head's pin is back
+    assert posing.rig.active.all()
+    key(posing, "u")  # the new pin back where it was placed (its spot of the control
+    np.testing.assert_allclose(posing.targets[5], point, rtol=0, atol=0.01)  # mesh)
+    key(posing, "u")  # and gone
+    assert len(posing.targets) == 5 and posing.rig is horse_rig32
+    for row in range(4):
+        mouse(posing, "button_press", posing.targets[row], button=3)
     mouse(posing, "button_press", posing.targets[HEAD], button=3)
-    np.testing.assert_array_equal(posing.targets, rest)
-    np.testing.assert_allclose(posing.shape_vertices, horse_rig32.shape_mesh.vertices, **POSE)
-    mouse(posing, "button_press", 0.5 * (rest[0] + rest[3]), button=3)
-    assert "Rig.build" in posing._status.get_text()
-    drag(posing, HEAD, [rest[HEAD] + 5.0])
-    assert posing._status.get_text() == ""
+    assert "last pin" in posing._status.get_text()
+    assert posing.rig.active.tolist() == [False] * 4 + [True]
+
+
+def test_pins_fill_the_spare_rows_then_say_so(horse_rig32):
+    posing = started(mvcjax.interact(horse_rig32, spare_pins=2))
+    points = [np.asarray(horse_rig32.shape_mesh.vertices)[
+        shape_point_away_from_handles(horse_rig32, seed)] for seed in range(3)]
+    for point in points:
+        mouse(posing, "button_press", point)
+        mouse(posing, "button_release", point)
+    assert len(posing.targets) == 7
+    assert "all 2 spare pins are placed" in posing._status.get_text()
+    posing.record()
+    drag(posing, 5, [points[0] + 10.0])
+    mouse(posing, "button_press", posing.targets[6], button=3)
+    drag(posing, 5, [points[0] + 20.0])
+    frames = np.asarray(posing.frames())
+    assert frames.shape[0] == 4
+    np.testing.assert_allclose(frames[-1], posing.shape_vertices, **POSE)
+    assert posing.recorded().shape == (4, 6, 2)
+    plain = started(mvcjax.interact(horse_rig32, spare_pins=0))
+    mouse(plain, "button_press", points[0])
+    assert "spare_pins" in plain._status.get_text() and len(plain.targets) == 5
 
 
 @pytest.mark.parametrize("stretch", [False, True])
@@ -335,7 +406,7 @@ def test_a_drag_that_folds_draws_the_folded_triangles_red_without_recompiling(ho
     posing.figure.canvas.draw()
     assert np.abs(canvas_pixels(posing) - blitted).max() <= 2
     # Back at rest: nothing folded, nothing red, no hint.
-    mouse(posing, "button_press", posing.targets[BACK], button=3)
+    key(posing, "u")
     assert posing.folds == 0 and posing.hint == ""
     assert not posing._fold_patch.get_visible() and not posing._fold_hint.get_visible()
     assert red_pixels(posing) == unfolded_red

@@ -1,7 +1,7 @@
-"""`mvcjax.interact` dragged with a real mouse: in JupyterLab in Chromium (Playwright,
-ipympl) and in a Tk window on a virtual X display (Xvfb, xdotool), as
-`benchmarks/live.py` measures it. Skipped, saying what to install, where Chromium or Xvfb
-is missing."""
+"""`mvcjax.interact` dragged with a real mouse, and pins added and removed by clicks:
+in JupyterLab in Chromium (Playwright, ipympl) and in a Tk window on a virtual X display
+(Xvfb, xdotool), as `benchmarks/live.py` measures it. Skipped, saying what to install,
+where Chromium or Xvfb is missing."""
 
 import sys
 from pathlib import Path
@@ -22,6 +22,8 @@ def check_dragged(row: dict, moves: int) -> None:
     assert moved[0] > 20 and moved[1] > 10, moved
     assert abs(moved[1] / moved[0] - live.DRAG[1] / live.DRAG[0]) < 0.2
     assert moves // 4 <= row["updates"] <= moves + 1
+    # A click on the body added a pin, a right-click on its dot took it out again.
+    assert len(row["pin_ms"]) == 2 and row["rows_after_pins"] == 5
 
 
 MOVES = 12
@@ -49,6 +51,16 @@ def test_interact_in_jupyterlab_in_chromium(tmp_path):
     assert changed.mean() < 0.25
     # The browser drew the drag's poses as they came.
     assert row["browser_pictures"] >= MOVES // 4
+    # The pin's red dot showed where the body was clicked, and went with the right-click.
+    pinned, unpinned = (np.asarray(Image.open(tmp_path / f"{name}.png").convert("RGB"),
+                                   np.int32) for name in ("pinned", "unpinned"))
+    x, y = row["clicked_at"]
+    dot = np.hypot(cols - x, rows - y) < 6
+
+    def red(picture):
+        return (picture[..., 0] > 180) & (picture[..., 1] < 90) & (picture[..., 2] < 90)
+
+    assert red(pinned)[dot].sum() > 20 and red(unpinned)[dot].sum() < 5
 
 
 def test_interact_in_a_tk_window_on_a_virtual_display(tmp_path):
