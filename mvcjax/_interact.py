@@ -36,7 +36,7 @@ from ._character import Character, CharacterRenderer
 from ._checks import check_solver
 from ._coordinates import barycentric_coordinates, locate_points
 from ._folds import signed_areas
-from ._pins import with_rows
+from ._pins import pin_state, with_pin_state, with_rows
 from ._render import Renderer, _window, check_drawn_mesh, fit_window, in_window
 from ._rig import Rig
 from ._solvers import DEFAULT_SOLVER, AbstractSolver, FoldFree
@@ -253,10 +253,10 @@ class Posing:
         self.updates, self.update_seconds, self.pin_seconds = 0, [], []
         self._dragged: int | None = None
         # The targets and the rig before each move, for undo.
-        self._history: list[tuple[np.ndarray, Rig | Character]] = []
+        self._history: list[tuple[np.ndarray, Any]] = []
         self._background = None
         self._recording, self._recorded, self._times = bool(record), [], []
-        self._recorded_rigs: list[Rig | Character] = []
+        self._recorded_pins: list[Any] = []
 
         self._draw_static(rest)
         self._solve()
@@ -280,8 +280,14 @@ class Posing:
 
     @_rig.setter
     def _rig(self, rig: Rig | Character) -> None:
-        # The rows that pin, on the host: read at every update.
+        # The rows that pin, on the host: read at every update. The pins' state is what
+        # undo and recordings keep (a few small arrays; a rig has its own factor).
         self._session_rig, self._active = rig, np.asarray(rig.handles.active)
+        self._pins = pin_state(rig) if isinstance(rig, Rig) else None
+
+    def _with_pins(self, pins) -> Rig | Character:
+        """The session's rig with the pins of `pins` (a `pin_state`)."""
+        return self._rig if pins is self._pins else with_pin_state(self._rig, pins)
 
     def _rows(self) -> np.ndarray:
         """The session's target rows that `rig` and `targets` hold: the given rig's,
@@ -335,15 +341,16 @@ class Posing:
 
     def _recorded_all(self, fps: Any) -> tuple[np.ndarray, list]:
         """The recorded targets of every session row (a pin's rows hold its rest
-        position while it pinned nothing) and the rig of each, sampled at `fps`."""
+        position while it pinned nothing) and the pins of each (`pin_state`), sampled at `fps`."""
         if not self._recorded:
             raise ValueError("nothing was recorded: call posing.record() (or interact(..., "
                              "record=True)) before dragging.")
         rest = np.asarray(self._rig.handle_positions, np.float64)
-        targets = np.stack([np.where(np.asarray(rig.handles.active)[:, None], t, rest)
-                            for t, rig in zip(self._recorded, self._recorded_rigs)])
+        active = [self._active if pins is None else pins[1] for pins in self._recorded_pins]
+        targets = np.stack([np.where(a[:, None], t, rest)
+                            for t, a in zip(self._recorded, active)])
         if fps is None:
-            return targets, list(self._recorded_rigs)
+            return targets, list(self._recorded_pins)
         if isinstance(fps, bool) or not (isinstance(fps, (int, float)) and fps > 0):
             raise ValueError(f"fps must be a positive number of frames per second, got {fps!r}.")
         times = np.asarray(self._times) - self._times[0]
@@ -354,7 +361,7 @@ class Posing:
         # Each frame posed with the pins of the last update at or before it.
         last = np.searchsorted(times, at, side="right") - 1
         return (sampled.reshape(count, *targets.shape[1:]),
-                [self._recorded_rigs[k] for k in last])
+                [self._recorded_pins[k] for k in last])
 
     def recorded(self, fps: Any = None) -> np.ndarray:
         """`(frames, h, 2)` the recorded targets of `rig` (the pins as they are now): one
@@ -367,12 +374,12 @@ class Posing:
         """`(frames, n, 2)` the recorded poses of the shape mesh, each with the pins it
         was made with (`deform_frames` of the recorded targets), ready for
         `Renderer.frames` and `mvcjax.export`."""
-        targets, rigs = self._recorded_all(fps)
+        targets, pins = self._recorded_all(fps)
         runs, start = [], 0
-        for end in range(1, len(rigs) + 1):
-            if end == len(rigs) or rigs[end] is not rigs[start]:
-                frames = deform_frames(rigs[start], targets[start:end].astype(self._dtype),
-                                       self.solver)
+        for end in range(1, len(pins) + 1):
+            if end == len(pins) or pins[end] is not pins[start]:
+                frames = deform_frames(self._with_pins(pins[start]),
+                                       targets[start:end].astype(self._dtype), self.solver)
                 runs.append(jnp.concatenate(frames, axis=1) if isinstance(frames, tuple)
                             else frames)
                 start = end
@@ -407,7 +414,7 @@ class Posing:
         self._update()
 
     def _remember(self) -> None:
-        self._history.append((self._all.copy(), self._rig))
+        self._history.append((self._all.copy(), self._pins))
 
     def reset(self) -> None:
         """Every target back at rest, the pins where they are (undone by `undo`)."""
@@ -421,7 +428,8 @@ class Posing:
         back."""
         if not self._history:
             return False
-        self._all, self._rig = self._history.pop()
+        self._all, pins = self._history.pop()
+        self._rig = self._with_pins(pins)
         self._update()
         return True
 
@@ -616,7 +624,7 @@ class Posing:
 
     def _record(self) -> None:
         self._recorded.append(self._all.copy())
-        self._recorded_rigs.append(self._rig)
+        self._recorded_pins.append(self._pins)
         self._times.append(time.perf_counter())
 
     # ---- mouse -----------------------------------------------------------------------------

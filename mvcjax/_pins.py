@@ -207,3 +207,22 @@ def with_rows(rig, rows: Any):
                    r.turns), rig,
         (handles, energy, rig.factor.rebuild(energy), take(rig.shape_mesh.handles, pinned),
          take(rig.control_mesh.handles, pinned), turns))
+
+
+def pin_state(rig) -> tuple[np.ndarray, ...]:
+    """What the pins of `rig` are, as a few small host arrays (a session's undo history
+    keeps these instead of rigs, each with a factor of its own)."""
+    return tuple(np.asarray(a) for a in (
+        rig.handles.rest, rig.handles.active, rig.energy.handles, rig.energy.handle_coef,
+        rig.shape_mesh.handles, rig.control_mesh.handles))
+
+
+def with_pin_state(rig, state: tuple[np.ndarray, ...]):
+    """`rig` with the pins of `state` (`pin_state` of a rig of the same shapes)."""
+    arrays = [to_device(a, a.dtype) for a in state]
+    rest, active, index, coef, shape_handles, control_handles = arrays
+    energy = eqx.tree_at(lambda e: (e.handles, e.handle_coef), rig.energy, (index, coef))
+    return eqx.tree_at(
+        lambda r: (r.handles.rest, r.handles.active, r.energy, r.factor, r.shape_mesh.handles,
+                   r.control_mesh.handles), rig,
+        (rest, active, energy, rig.factor.rebuild(energy), shape_handles, control_handles))

@@ -170,6 +170,8 @@ def test_a_click_adds_a_pin_and_a_right_click_removes_one_without_compiling(hors
     np.testing.assert_array_equal(last[1], freed)
     assert len(posing.pin_seconds) == 2
     assert posing._pose._cache_size() == 1
+    # Undo keeps the pins as a few small arrays, not rigs (each with a factor of its own).
+    assert not any(isinstance(pins, mvcjax.Rig) for _, pins in posing._history)
     key(posing, "u")  # the head's pin is back
     assert posing.rig.active.all()
     key(posing, "u")  # the new pin back where it was placed (its spot of the control
