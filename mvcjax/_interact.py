@@ -36,7 +36,7 @@ from ._character import Character, CharacterRenderer
 from ._checks import check_solver
 from ._coordinates import barycentric_coordinates, locate_points
 from ._folds import signed_areas
-from ._pins import pin_state, with_pin_state, with_rows
+from ._pins import pin_state, pinned_row, with_pin_state, with_rows
 from ._render import Renderer, _window, check_drawn_mesh, fit_window, in_window
 from ._rig import Rig
 from ._solvers import DEFAULT_SOLVER, AbstractSolver, FoldFree
@@ -437,6 +437,15 @@ class Posing:
         """Pin the shape where it is at `point` in the current pose (what a click on the
         shape does), and return the pin's row in the session (`rig` and `targets` hold
         it last). The pose stays as it is; the pin holds that spot of the shape."""
+        point = np.asarray(point, np.float64)
+        at_rest = self._at_rest(point)
+        if at_rest is None:
+            raise ValueError(f"point {point.tolist()} is not on the shape as it is posed; "
+                             "click on the shape to add a pin.")
+        return self._pin(at_rest)
+
+    def _pin(self, at_rest: np.ndarray) -> int:
+        """`add_pin` of the spot at rest point `at_rest`."""
         if not isinstance(self._rig, Rig) or self._rig is self._given:
             raise ValueError("this session has no spare pins: interact(rig, spare_pins=8) "
                              "with an mvcjax.Rig adds pins by click (a Character's pins "
@@ -447,17 +456,12 @@ class Posing:
                              "placed: remove one (right-click it), or interact(..., "
                              "spare_pins=more).")
         row = self._own_rows + int(free[0])
-        point = np.asarray(point, np.float64)
-        at_rest = self._at_rest(point)
-        if at_rest is None:
-            raise ValueError(f"point {point.tolist()} is not on the shape as it is posed; "
-                             "click on the shape to add a pin.")
         rig = self._rig.with_pin(row, at_rest)
         self._remember()
         self._rig = rig
         # Its target: where the pin's spot of the control mesh is now, which the pose
-        # already meets (the pose stays the minimum), a hair from `point`.
-        pinned = int(np.flatnonzero(np.asarray(rig.handles.first) == row)[0])
+        # already meets (the pose stays the minimum), a hair from the click.
+        pinned = pinned_row(rig, row)
         index = np.asarray(rig.energy.handles)[pinned]
         coef = np.asarray(rig.energy.handle_coef, np.float64)[pinned]
         self._all[row] = coef @ np.asarray(self._control_vertices, np.float64)[index]
@@ -672,10 +676,11 @@ class Posing:
             self._say(_CHARACTER_HINT if isinstance(self._rig, Character) else
                       "pins by click need spare pins: interact(rig, spare_pins=8)")
             return
-        if self._at_rest(point) is None:
+        at_rest = self._at_rest(point)
+        if at_rest is None:
             return  # a click beside the shape
         try:
-            row = self.add_pin(point)
+            row = self._pin(at_rest)
         except ValueError as error:  # every spare pin placed
             self._say(str(error))
             return

@@ -94,6 +94,11 @@ def _bone_of(rig, row: int) -> np.ndarray | None:
     return bones[hit[0]] if len(hit) else None
 
 
+def pinned_row(rig, row: int) -> int:
+    """The row of `C` that target row `row` of a point handle pins."""
+    return int(np.flatnonzero(np.asarray(rig.handles.first) == row)[0])
+
+
 def _local_frame(rig) -> tuple[np.ndarray, float]:
     return np.asarray(rig.frame.centre, np.float64), float(rig.frame.scale)
 
@@ -121,7 +126,7 @@ def with_pin(rig, row: Any, point: Any):
     bary = np.clip(barycentric_coordinates(local_point, control[faces[which]])[0], 0.0, None)
     bary /= bary.sum()
     h, e = rig.handles, rig.energy
-    pinned_row = int(np.flatnonzero(np.asarray(h.first) == row)[0])
+    pinned = pinned_row(rig, row)
     width = e.handles.shape[1]
     if width < _PIN_WIDTH:
         raise ValueError("this rig's handle rows hold one vertex each; call "
@@ -132,8 +137,8 @@ def with_pin(rig, row: Any, point: Any):
     coef = np.zeros(width)
     coef[:_PIN_WIDTH] = bary
     energy = eqx.tree_at(lambda e: (e.handles, e.handle_coef), e,
-                         (_set_row(e.handles, pinned_row, index),
-                          _set_row(e.handle_coef, pinned_row, coef)))
+                         (_set_row(e.handles, pinned, index),
+                          _set_row(e.handle_coef, pinned, coef)))
     handles = eqx.tree_at(lambda h: (h.rest, h.active), h,
                           (_set_row(h.rest, row, local_point[0]), _set_row(h.active, row, True)))
     nearest_shape = int(np.argmin(np.linalg.norm(vertices - point, axis=1)))
@@ -141,8 +146,8 @@ def with_pin(rig, row: Any, point: Any):
     return eqx.tree_at(
         lambda r: (r.handles, r.energy, r.factor, r.shape_mesh.handles, r.control_mesh.handles),
         rig, (handles, energy, rig.factor.rebuild(energy),
-              _set_row(shape.handles, pinned_row, nearest_shape),
-              _set_row(rig.control_mesh.handles, pinned_row, nearest_control)))
+              _set_row(shape.handles, pinned, nearest_shape),
+              _set_row(rig.control_mesh.handles, pinned, nearest_control)))
 
 
 def without_pin(rig, row: Any):
