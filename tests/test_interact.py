@@ -142,6 +142,7 @@ def test_a_click_adds_a_pin_and_a_right_click_removes_one_without_compiling(hors
 
     def shown():  # the session's own rig: its spare rows are all there
         seen.append((posing._all.copy(), posing.shape_vertices.copy(), posing._rig))
+        assert posing.folds == 0  # every pose shown here unfolded
 
     with Compilations() as compiled:
         mouse(posing, "button_press", point)  # a pin there, and dragged at once

@@ -70,6 +70,7 @@ def test_a_placed_pin_holds_the_shape_where_it_is_dragged(horse_rig):
     goal = point + [0.05 * size, -0.03 * size]
     targets = targets_for(rig, np.zeros((5, 2)), [(5, goal)])
     shape, info = rig.deform(targets, return_info=True)
+    assert mvcjax.flipped_triangles(rig.shape_mesh.vertices, shape, rig.shape_mesh.faces) == 0
     # The control mesh meets the pin as it meets any handle; the shape point there
     # follows by the skinning, which departs a little from the triangle's plane inside.
     assert float(info.handle_miss) < 2e-3 * size
