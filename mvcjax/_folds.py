@@ -23,9 +23,10 @@ def signed_areas(vertices: Float[Array, "n 2"], faces: Int[Array, "f 3"]) -> Flo
 def inverted_count(vertices: Float[Array, "n 2"], faces: Int[Array, "f 3"],
                    rest: Float[Array, "n 2"]) -> Int[Array, ""]:
     """How many triangles have turned inside out (or flat) since `rest`: their signed
-    area has left the rest area's sign."""
+    area has left the rest area's sign. A triangle without rest area (a stack's padding,
+    `Rig.stack`) has no inside to turn out, and is not counted."""
     now, before = signed_areas(vertices, faces), signed_areas(rest, faces)
-    return jnp.sum(now * jnp.sign(before) <= 0).astype(jnp.int32)
+    return jnp.sum((now * jnp.sign(before) <= 0) & (before != 0)).astype(jnp.int32)
 
 
 def area_along(vertices: Float[Array, "n 2"], direction: Float[Array, "n 2"],
@@ -41,7 +42,9 @@ def first_flat(a: Float[Array, " f"], b: Float[Array, " f"], c: Float[Array, " f
                ) -> Float[Array, ""]:
     """The smallest `t > 0` where some `a + b t + c t^2` (twice a triangle's area along
     a line, `area_along`) reaches zero: infinite if none does, zero if a triangle is
-    already flat or inverted. The roots are taken in the form that does not cancel."""
+    already flat or inverted. A triangle flat all along the line (`a = b = c = 0`: a
+    stack's padding, `Rig.stack`) does not count. The roots are taken in the form that
+    does not cancel."""
     inf = jnp.asarray(jnp.inf, a.dtype)
 
     def positive(root):
@@ -54,7 +57,8 @@ def first_flat(a: Float[Array, " f"], b: Float[Array, " f"], c: Float[Array, " f
     first = jnp.where(c != 0, q / jnp.where(c != 0, c, 1.0), inf)
     second = jnp.where(q != 0, a / jnp.where(q != 0, q, 1.0), inf)
     roots = jnp.where(real, jnp.minimum(positive(first), positive(second)), inf)
-    return jnp.min(jnp.where(a > 0, roots, 0.0), initial=inf)
+    never = (a == 0) & (b == 0) & (c == 0)
+    return jnp.min(jnp.where(a > 0, roots, jnp.where(never, inf, 0.0)), initial=inf)
 
 
 def largest_safe_step(vertices: Float[Array, "n 2"], direction: Float[Array, "n 2"],

@@ -88,6 +88,8 @@ class Handles(eqx.Module):
             (a spare pin not yet placed, a pin taken out: `Rig.with_pin`,
             `Rig.without_pin`) has its pinned rows' coefficients and targets at zero,
             so that the arrays, and the compiled programs, keep their shapes.
+        padding: `(r,)` whether each pinned row is padding, which never pins (a rig
+            padded to the sizes of others, to stack with them: `Rig.stack`).
     """
 
     rest: Float[Array, "t 2"]
@@ -98,6 +100,7 @@ class Handles(eqx.Module):
     rigid: Bool[Array, " r"]
     bones: Int[Array, "b 2"]
     active: Bool[Array, " t"]
+    padding: Bool[Array, " r"]
 
     @property
     def count(self) -> int:
@@ -130,8 +133,9 @@ class Handles(eqx.Module):
         return jnp.where(self.row_active()[:, None], pinned, jnp.zeros_like(pinned))
 
     def row_active(self) -> Bool[Array, " r"]:
-        """Whether each pinned row pins (both its target rows are `active`)."""
-        return self.active[self.first] & self.active[self.second]
+        """Whether each pinned row pins (both its target rows are `active`, and it is
+        not `padding`)."""
+        return self.active[self.first] & self.active[self.second] & ~self.padding
 
 
 def parse_handles(handles) -> tuple[np.ndarray, list[tuple[int, Bone]], list[int]]:
@@ -275,4 +279,5 @@ def make_handles(points, bones, rows, dtype) -> Handles:
         rigid=to_device(rigid, bool),
         bones=as_ints(pairs),
         active=to_device(np.ones(len(points), bool), bool),
+        padding=to_device(np.zeros(len(first), bool), bool),
     )

@@ -55,12 +55,13 @@ def with_spare_pins(rig, count: Any):
     new = np.arange(t, t + count, dtype=np.int32)
     zeros = np.zeros(count)
     handles = eqx.tree_at(
-        lambda h: (h.rest, h.first, h.second, h.along, h.length, h.rigid, h.active), h,
+        lambda h: (h.rest, h.first, h.second, h.along, h.length, h.rigid, h.active,
+                   h.padding), h,
         (jnp.concatenate([h.rest, jnp.zeros((count, 2), dtype)]),
          *(jnp.concatenate([a, to_device(new, np.int32)]) for a in (h.first, h.second)),
          *(jnp.concatenate([a, to_device(zeros, dtype)]) for a in (h.along, h.length)),
          *(jnp.concatenate([a, to_device(zeros.astype(bool), bool)])
-           for a in (h.rigid, h.active))))
+           for a in (h.rigid, h.active, h.padding))))
     width = max(_PIN_WIDTH, e.handles.shape[1])
     energy = eqx.tree_at(
         lambda e: (e.handles, e.handle_coef), e,
@@ -193,11 +194,13 @@ def with_rows(rig, rows: Any):
     pinned = pinned[np.argsort(new_index[first[pinned]], kind="stable")]
     take = lambda a, index: jnp.asarray(a)[to_device(index, np.int32)]  # noqa: E731
     handles = eqx.tree_at(
-        lambda h: (h.rest, h.first, h.second, h.along, h.length, h.rigid, h.bones, h.active), h,
+        lambda h: (h.rest, h.first, h.second, h.along, h.length, h.rigid, h.padding, h.bones,
+                   h.active), h,
         (take(h.rest, rows),
          to_device(new_index[first[pinned]], np.int32),
          to_device(new_index[second[pinned]], np.int32),
          take(h.along, pinned), take(h.length, pinned), take(h.rigid, pinned),
+         take(h.padding, pinned),
          to_device(new_index[bones[keep[bones[:, 0]]]].reshape(-1, 2), np.int32),
          take(h.active, rows)))
     energy = eqx.tree_at(lambda e: (e.handles, e.handle_coef), e,

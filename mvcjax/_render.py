@@ -367,7 +367,7 @@ class Renderer(JittableModule):
         boundary = on_boundary(faces)
         tile, rest = _tiling(vertices, faces, boundary, window, rows, cols, antialias)
         if budget is None:
-            budget = 16 * rest + 4 * -(-rows // tile) * -(-cols // tile)
+            budget = _default_budget(rest, rows, cols, tile)
         budget = whole_number(budget, "budget")
         background = np.asarray(background, np.float64)
         if background.shape == (3,):
@@ -390,6 +390,27 @@ class Renderer(JittableModule):
             antialias=bool(antialias),
             see_through=bool(see_through),
         )
+
+    @classmethod
+    def stack(cls, renderers: Any) -> Renderer:
+        """Renderers of different meshes and pictures as one batched renderer, for
+        `jax.vmap`: `jax.vmap(lambda r, v: r(v))(stack, vertices)` draws pose `i` with
+        renderer `i`, and a second `vmap` over frames, `jax.vmap(lambda r, f:
+        jax.vmap(r)(f))(stack, frames)` with frames `(len(renderers), frames, n, 2)`,
+        draws every character's frames, picture after picture, in one program.
+
+        The meshes are padded to the largest (triangles without area, drawn nowhere;
+        vertices repeating the first), the pictures to the largest (edge pixels
+        repeated): pose `i` has the rows of `renderers[i]`'s vertices first, then any
+        values (`Rig.stack`'s output fits). All must draw pictures of one size, with
+        the same `antialias`, `alpha` and dtype.
+
+        Args:
+            renderers: a list of renderers (`Renderer.build`).
+        """
+        from ._stack import stack_renderers
+
+        return stack_renderers(renderers)
 
     def __call__(
         self, vertices: Float[ArrayLike, "n 2"], window: Any = None
@@ -518,24 +539,51 @@ def _grown(window, vertices, shape: tuple[int, int]):
     return jnp.concatenate([centre - half, centre + half])
 
 
+def _one_after_another(fn, in_batched, args):
+    """`jax.vmap(fn)` as a loop (`jax.lax.map`) over the batched leaves of `args`, the
+    others closed over."""
+    leaves, tree = jax.tree.flatten(args)
+    flags = jax.tree.leaves(in_batched)
+
+    def one(batched):
+        it = iter(batched)
+        return fn(*jax.tree.unflatten(tree, [next(it) if b else x
+                                             for x, b in zip(leaves, flags)]))
+
+    return jax.lax.map(one, [x for x, b in zip(leaves, flags) if b])
+
+
+def _draw_each(renderer: Renderer, vertices, window):
+    """Pictures of `(f, n, 2)` poses in `(f, 4)` windows, one after another."""
+    return jax.lax.map(lambda vw: _draw(renderer, *vw), (vertices, window))
+
+
+def _draw_each_batched(size: int, in_batched, renderer: Renderer, vertices, window):
+    # A batch of sequences (a stack of renderers, each with its frames): one sequence
+    # after another, each drawn frame after frame.
+    return _one_after_another(_draw_each, in_batched, (renderer, vertices, window)), True
+
+
+_draw_sequence = with_batching_rule(_draw_each, _draw_each_batched)
+
+
 def _draw_frames(frames: int, in_batched, renderer: Renderer, vertices, window):
-    """`jax.vmap(_draw)` over poses (and windows): one frame after another inside one
-    program. JAX's batching would fuse the batch's shading into larger loops that redo
-    table lookups (`benchmarks/vmap_rules.py` times both)."""
-    renderer_batched, vertices_batched, window_batched = in_batched
-    levels_batched = renderer_batched.level is True  # a draw order per frame
-    if any(jax.tree.leaves(eqx.tree_at(lambda r: r.level, renderer_batched, False,
-                                       is_leaf=lambda x: x is None))):
-        return None  # a batch of renderers: JAX's own batching
+    """`jax.vmap(_draw)`: one frame after another inside one program. JAX's batching
+    would fuse the batch's shading into larger loops that redo table lookups
+    (`benchmarks/vmap_rules.py` times both).
+
+    With one renderer, the frames go to `_draw_sequence`, whose own rule takes over
+    when an outer `jax.vmap` maps over a stack of renderers (`Renderer.stack`): stacks
+    of characters by frames are then drawn picture by picture too. A batched renderer
+    (a stack, or a draw order per frame) is looped over with the poses."""
+    if any(jax.tree.leaves(in_batched[0])):
+        return _one_after_another(_draw, in_batched, (renderer, vertices, window)), True
+    _, vertices_batched, window_batched = in_batched
     if not window_batched:
         window = jnp.broadcast_to(window, (frames, *window.shape))
     if not vertices_batched:
         vertices = jnp.broadcast_to(vertices, (frames, *vertices.shape))
-    if not levels_batched:
-        return jax.lax.map(lambda vw: _draw(renderer, *vw), (vertices, window)), True
-    return jax.lax.map(
-        lambda vwl: _draw(eqx.tree_at(lambda r: r.level, renderer, vwl[2]), vwl[0], vwl[1]),
-        (vertices, window, renderer.level)), True
+    return _draw_sequence(renderer, vertices, window), True
 
 
 @eqx.filter_jit
@@ -708,17 +756,41 @@ def _tiles(tri, fringe, rows: int, cols: int, tile: int):
     return first, first + extent - 1, across
 
 
+def _tile_counts(vertices, faces, boundary, window, rows, cols, antialias) -> dict[int, int]:
+    """How many tiles of each side in `_TILES` the rest mesh's triangles cover."""
+    across = _tiles_across(np.asarray(vertices[faces], np.float32), np.asarray(boundary),
+                           np.asarray(window, np.float32), rows, cols, antialias)
+    return {tile: int(np.sum(np.prod(np.asarray(a, np.int64), axis=1)))
+            for tile, a in zip(_TILES, across)}
+
+
 def _tiling(vertices, faces, boundary, window, rows, cols, antialias) -> tuple[int, int]:
     """The tile side with the fewest candidate pixels for the rest mesh, and how many
     tiles that side needs."""
-    across = _tiles_across(np.asarray(vertices[faces], np.float32), np.asarray(boundary),
-                           np.asarray(window, np.float32), rows, cols, antialias)
-    counts = {tile: int(np.sum(np.prod(np.asarray(a, np.int64), axis=1)))
-              for tile, a in zip(_TILES, across)}
+    counts = _tile_counts(vertices, faces, boundary, window, rows, cols, antialias)
     # A tile is charged as a dozen candidate pixels (its triangle's row, the slot's
     # arithmetic), about its cost against a pixel's.
     tile = min(_TILES, key=lambda t: counts[t] * (t * t + 12))
     return tile, counts[tile]
+
+
+def _default_budget(rest: int, rows: int, cols: int, tile: int) -> int:
+    """Sixteen times the rest mesh's tiles, plus four pictures' worth."""
+    return 16 * rest + 4 * -(-rows // tile) * -(-cols // tile)
+
+
+def stack_tiling(renderers) -> tuple[int, int]:
+    """One tile side for renderers drawn as a stack (`Renderer.stack`): the fewest
+    candidate pixels over all their rest meshes; and a budget that holds each (its
+    own, where it drew with that side, or the default for that side)."""
+    rows, cols = renderers[0].shape
+    counts = [_tile_counts(np.asarray(r.rest), np.asarray(r.faces), r.boundary, r.window,
+                           rows, cols, r.antialias) for r in renderers]
+    tile = min(_TILES, key=lambda t: sum(c[t] for c in counts) * (t * t + 12))
+    budget = max(max(r.budget if r.tile == tile else 0, _default_budget(c[tile], rows, cols,
+                                                                           tile))
+                 for r, c in zip(renderers, counts))
+    return tile, budget
 
 
 @functools.partial(jax.jit, static_argnums=(3, 4, 5))

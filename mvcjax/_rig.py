@@ -355,6 +355,41 @@ class Rig(JittableModule):
         note_size(rig)  # a bounded number of sizes' programs kept (`_programs`)
         return rig
 
+    @classmethod
+    def stack(cls, rigs: Any) -> Rig:
+        """Rigs of different shapes as one batched rig, for `jax.vmap`:
+        `jax.vmap(lambda r, t: r.deform(t))(stack, targets)` poses them all in one
+        compiled program, with `targets` of shape `(len(rigs), h, 2)` (nest a second
+        `vmap` over frames: `(len(rigs), frames, h, 2)`), and differentiates like one rig.
+
+        Each rig is padded to the largest sizes among them, in a way that changes no
+        result: rig `i`'s deformed shape is the first `rigs[i].shape_mesh.vertices.shape[0]`
+        rows of its output, equal to `rigs[i].deform(t)` to float rounding (the rows past
+        them repeat its first vertex). The stack solves with a dense `G` (a sparse
+        factor cannot be batched), however each rig was built. `Renderer.stack` draws
+        such a stack.
+
+        Args:
+            rigs: a list of rigs with the same handles' layout (as many target rows,
+                bones at the same rows), one dtype and one skinning method.
+        """
+        from ._stack import stack_rigs
+
+        return stack_rigs(rigs)
+
+    @property
+    def stacked(self) -> int | None:
+        """How many rigs this stack holds (`Rig.stack`), or None for a single rig."""
+        return self.frame.scale.shape[0] if self.frame.scale.ndim else None
+
+    def _single(self) -> None:
+        if self.stacked is not None:
+            raise ValueError(
+                f"This rig is a stack of {self.stacked} rigs (Rig.stack): pose it under "
+                "jax.vmap, e.g. jax.vmap(lambda r, t: r.deform(t))(stack, targets) with "
+                f"targets of shape ({self.stacked}, h, 2), or take rig i out with "
+                "jax.tree.map(lambda a: a[i], stack).")
+
     # ---- using the rig --------------------------------------------------------------
 
     @property
@@ -490,6 +525,7 @@ class Rig(JittableModule):
             self.frame.to_local(self._check_targets(targets)), self._check_init(init)))
 
     def _check_targets(self, targets) -> Float[Array, "h 2"]:
+        self._single()
         return check_targets(targets, self.handles.count, self.energy.rest.dtype)
 
     def solve(
@@ -591,6 +627,11 @@ class Rig(JittableModule):
         return (shape, info) if return_info else shape
 
     def __repr__(self) -> str:
+        if self.stacked is not None:
+            return (f"Rig(a stack of {self.stacked} rigs padded to "
+                    f"{self.shape_mesh.vertices.shape[1]} shape vertices and "
+                    f"{self.energy.rest.shape[1]} control vertices, "
+                    f"{self.handles.rest.shape[1]} targets)")
         cm = self.control_mesh
         bones = self.handles.bones.shape[0]
         idle = int((~self.active).sum())

@@ -62,7 +62,10 @@ class _Barrier(eqx.Module):
     Attributes:
         faces: `(f, 3)` the triangles, on the mesh's points.
         corner_index, corner_weight: `(f, 3, k)` each corner as control vertices.
-        rest_area: `(f,)` twice each triangle's rest area.
+        rest_area: `(f,)` twice each triangle's rest area (1 for a triangle without
+            area: a stack's padding, `Rig.stack`).
+        flat: `(f,)` 1 for a triangle without rest area, which never folds (its share
+            of its rest area counts as 1), else 0.
         root_weight: `(f,)` the square root of its weight times its rest area.
         shape: how the points follow the control vertices (None: they are them).
         rows: how many triangles, the most squeezed, enter each step's linear solve.
@@ -73,6 +76,7 @@ class _Barrier(eqx.Module):
     corner_index: Int[Array, "f 3 k"]
     corner_weight: Float[Array, "f 3 k"]
     rest_area: Float[Array, " f"]
+    flat: Float[Array, " f"]
     root_weight: Float[Array, " f"]
     shape: SkinnedMesh | None
     rows: int = eqx.field(static=True)
@@ -90,8 +94,10 @@ class _Barrier(eqx.Module):
             index, corner_weight = skinning.indices[faces], skinning.weights[faces]
             rows = min(faces.shape[0], _SHAPE_ROWS)
         area = signed_areas((rest if shape is None else shape.carry(rest)).T, faces)
-        return cls(faces, index, corner_weight, area,
-                   jnp.sqrt(weight * area).astype(rest.dtype), shape, rows, threshold)
+        flat = area == 0
+        return cls(faces, index, corner_weight, jnp.where(flat, 1.0, area).astype(rest.dtype),
+                   flat.astype(rest.dtype), jnp.sqrt(weight * area).astype(rest.dtype), shape,
+                   rows, threshold)
 
     def points(self, y: Float[Array, "2 c"]) -> Float[Array, "2 n"]:
         return y if self.shape is None else self.shape.carry(y)
@@ -105,7 +111,7 @@ class _Barrier(eqx.Module):
 
     def area_shares(self, points: Float[Array, "2 n"]) -> Float[Array, " f"]:
         """Each triangle's area over its rest area (negative if inverted)."""
-        return signed_areas(points.T, self.faces) / self.rest_area
+        return signed_areas(points.T, self.faces) / self.rest_area + self.flat
 
     def feasible(self, points: Float[Array, "2 n"]) -> Array:
         return jnp.all(self.area_shares(points) > 0)
@@ -119,7 +125,7 @@ class _Barrier(eqx.Module):
         """The squared residuals' sum at `t` on a `line`; infinite past a flat
         triangle."""
         a, b, c = line
-        s = (a + t * (b + t * c)) / self.rest_area
+        s = (a + t * (b + t * c)) / self.rest_area + self.flat
         r = self._residual(s, self.root_weight)[0]
         return jnp.where(jnp.all(s > 0), jnp.sum(r * r), jnp.inf)
 

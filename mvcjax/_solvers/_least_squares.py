@@ -86,7 +86,10 @@ class ScaledProblem(eqx.Module):
         self.length = jnp.concatenate([
             t.length / energy.scale if t.length is not None else jnp.zeros(t.count, dtype)
             for t in narrow]).astype(dtype)
-        u = self.scaled(targets).astype(dtype)
+        # A row that pins nothing (coefficients zero, target zero) is measured from zero
+        # too, not from the centring's shift: its residual is then zero, not a constant
+        # that would count in the tolerances.
+        u = (self.scaled(targets) * energy.handle_presence()).astype(dtype)
         self.offset = jnp.concatenate([
             jax.lax.complex(u[0], u[1]) if t.pinned else jnp.zeros(t.count, dtype)
             for t in narrow])

@@ -1,0 +1,301 @@
+"""Stacks: rigs (and their renderers) of different sizes padded to common sizes and
+stacked into one batched pytree, so that `jax.vmap` poses and draws them all in one
+compiled program.
+
+The padding changes no result, only the arrays' sizes:
+- a padded control vertex sits on control vertex 0 at rest, held there by a mean value
+  row `V_p - V_0` of its own. Its coefficients sum to zero, as every shape row's do
+  (the solvers' centring relies on it); only that row moves it, so the minimum keeps it
+  on vertex 0 and the real vertices feel nothing;
+- padded Laplacian, edge and face rows all lie on vertex 0: zero vectors of rest length
+  zero (residual zero, gradient zero) and triangles without area (never drawn, never
+  counted as folded);
+- padded rows of `C` have zero coefficients and are marked `Handles.padding`;
+- padded shape vertices repeat shape vertex 0 (the skinning gives them its row);
+- the packed skinning tiles and blocks, and the dense factor's tables, get zero
+  weights.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._factor import DenseFactor, dense_factor
+from ._skinning import (
+    BLOCK_ROWS,
+    Skinning,
+    block_width_limit,
+    pack_blocks,
+    pack_rows,
+    tile_rows,
+)
+from ._xla import to_device
+
+# Past this many bytes of dense factors in one stack, stacking says so instead of
+# allocating them (a dense `G` grows with the square of the control vertices).
+_FACTOR_LIMIT_BYTES = 2**31
+
+
+def _rows(a: Any, count: int, fill: Any = 0) -> np.ndarray:
+    """`a` with rows equal to `fill` appended up to `count` rows."""
+    a = np.asarray(a)
+    extra = np.broadcast_to(np.asarray(fill, a.dtype), (count - len(a), *a.shape[1:]))
+    return np.concatenate([a, extra])
+
+
+def _columns(a: Any, width: int, fill: Any = 0) -> np.ndarray:
+    a = np.asarray(a)
+    return np.pad(a, ((0, 0), (0, width - a.shape[1])), constant_values=fill)
+
+
+def _pad_to(a: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """`a` padded with zeros at the end of every axis up to `shape`."""
+    return np.pad(a, [(0, s - n) for s, n in zip(shape, a.shape)])
+
+
+def _sizes(rig) -> dict[str, int]:
+    e = rig.energy
+    return dict(
+        shape_vertices=rig.shape_mesh.vertices.shape[0],
+        shape_faces=rig.shape_mesh.faces.shape[0],
+        control_vertices=e.rest.shape[0],
+        control_faces=e.faces.shape[0],
+        outer=rig.control_mesh.outer.shape[0],
+        laplacian=e.laplacian_index.shape[0],
+        ring=e.mvc_ring.shape[1],
+        edges=e.edges.shape[0],
+        pinned=e.handles.shape[0],
+        pin_width=e.handles.shape[1],
+        skin_width=rig.skinning.tile_indices.shape[0],
+    )
+
+
+def common_sizes(rigs: Sequence[Any]) -> dict[str, int]:
+    """The sizes every rig of `rigs` pads to: the largest of each. The mean value rows
+    also hold each rig's padded control vertices, one row each."""
+    sizes = [_sizes(r) for r in rigs]
+    common = {k: max(s[k] for s in sizes) for k in sizes[0]}
+    common["mvc"] = max(r.energy.mvc_centre.shape[0] + common["control_vertices"]
+                        - s["control_vertices"] for r, s in zip(rigs, sizes))
+    return common
+
+
+def _padded_energy(energy, sizes: dict[str, int]):
+    e = energy
+    c0, c = e.rest.shape[0], sizes["control_vertices"]
+    g, w = sizes["mvc"], sizes["ring"]
+    holders = np.arange(c0, c)
+    # Each padded vertex's row is `V_p - V_0`; further rows `V_0 - V_0` are zero.
+    ring_weight = _columns(e.mvc_weight, w)
+    ring_weight = _rows(_rows(ring_weight, len(ring_weight) + len(holders),
+                              np.eye(1, w)[0]), g, np.eye(1, w)[0])
+    laplacian, edges, pinned = sizes["laplacian"], sizes["edges"], sizes["pinned"]
+    dtype = e.rest.dtype
+    arrays = dict(
+        rest=_rows(e.rest, c, np.asarray(e.rest[0])),
+        laplacian_index=_rows(e.laplacian_index, laplacian),
+        laplacian_length=_rows(e.laplacian_length, laplacian),
+        mvc_centre=_rows(np.concatenate([np.asarray(e.mvc_centre), holders]), g),
+        mvc_ring=_rows(_columns(e.mvc_ring, w), g),
+        mvc_weight=ring_weight,
+        edges=_rows(e.edges, edges),
+        edge_length=_rows(e.edge_length, edges),
+        handles=_rows(_columns(e.handles, sizes["pin_width"]), pinned),
+        handle_coef=_rows(_columns(e.handle_coef, sizes["pin_width"]), pinned),
+        faces=_rows(e.faces, sizes["control_faces"]),
+    )
+    return eqx.tree_at(
+        lambda e: [getattr(e, k) for k in arrays], e,
+        [to_device(a, np.int32 if a.dtype.kind in "iu" else dtype) for a in arrays.values()])
+
+
+def _padded_rows(skinning: Skinning, count: int, width: int):
+    """The skinning's rows `(indices, weights)` on the host, padded to `count` rows (each
+    a copy of row 0) and `width` entries (weight zero)."""
+    index = np.asarray(skinning.indices, np.int64)
+    weight = np.asarray(skinning.weights, np.float64)
+    return (_rows(_columns(index, width), count, _columns(index, width)[0]),
+            _rows(_columns(weight, width), count, _columns(weight, width)[0]))
+
+
+def _skinnings(rigs, sizes: dict[str, int]) -> list[Skinning]:
+    """The rigs' skinnings packed alike: one tile size, tiles and blocks padded with
+    zero weights to the largest count and width."""
+    rows = [_padded_rows(r.skinning, sizes["shape_vertices"], sizes["skin_width"])
+            for r in rigs]
+    tile = max(tile_rows(index) for index, _ in rows)
+    tiles = [pack_rows(index, weight, tile) for index, weight in rows]
+    blocks = [pack_blocks(index, weight, BLOCK_ROWS, block_width_limit(index.shape[1]))
+              for index, weight in rows]
+    if any(b is None for b in blocks):  # one rig's rows too scattered: none blocked
+        blocks = [(np.zeros((0, 1), np.int64), np.zeros((0, 1, BLOCK_ROWS)))] * len(rows)
+
+    def most(arrays) -> tuple[int, ...]:
+        return tuple(int(s) for s in np.max([a.shape for a in arrays], axis=0))
+
+    tile_index, tile_weight = most([t[0] for t in tiles]), most([t[1] for t in tiles])
+    block_index, block_weight = most([b[0] for b in blocks]), most([b[1] for b in blocks])
+    out = []
+    for rig, (ti, tw, slot), (bi, bw) in zip(rigs, tiles, blocks):
+        dtype = rig.energy.rest.dtype
+        out.append(Skinning(
+            to_device(_pad_to(ti, tile_index), np.int32), to_device(_pad_to(tw, tile_weight),
+                                                                    dtype),
+            to_device(slot, np.int32), to_device(_pad_to(bi, block_index), np.int32),
+            to_device(_pad_to(bw, block_weight), dtype), rig.skinning.method))
+    return out
+
+
+def _factors(energies) -> list[DenseFactor]:
+    """Dense factors of the padded energies, their spread tables padded alike (entry 0
+    with coefficient zero adds nothing)."""
+    factors = [dense_factor(e) for e in energies]
+    width = max(f.spread.shape[1] for f in factors)
+    return [eqx.tree_at(lambda f: (f.spread, f.spread_coef), f,
+                        (to_device(_columns(f.spread, width), np.int32),
+                         to_device(_columns(f.spread_coef, width), f.spread_coef.dtype)))
+            for f in factors]
+
+
+def _pad_rig(rig, sizes: dict[str, int], skinning: Skinning, factor: DenseFactor, energy):
+    """`rig` padded to `sizes`, with its padded skinning, factor and energy."""
+    n, r, c = sizes["shape_vertices"], sizes["pinned"], sizes["control_vertices"]
+    h, sm, cm = rig.handles, rig.shape_mesh, rig.control_mesh
+    dtype = rig.energy.rest.dtype
+    ints = lambda a: to_device(a, np.int32)  # noqa: E731
+    real = lambda a: to_device(a, dtype)  # noqa: E731
+    return eqx.tree_at(
+        lambda g: (g.handles.first, g.handles.second, g.handles.along, g.handles.length,
+                   g.handles.rigid, g.handles.padding, g.shape_mesh, g.control_mesh,
+                   g.skinning, g.energy, g.factor, g.turns), rig,
+        (ints(_rows(h.first, r)), ints(_rows(h.second, r)), real(_rows(h.along, r)),
+         real(_rows(h.length, r)), to_device(_rows(h.rigid, r), bool),
+         to_device(_rows(h.padding, r, True), bool),
+         type(sm)(real(_rows(sm.vertices, n, np.asarray(sm.vertices[0]))),
+                  ints(_rows(sm.faces, sizes["shape_faces"])), ints(_rows(sm.handles, r))),
+         type(cm)(real(_rows(cm.vertices, c, np.asarray(cm.vertices[0]))),
+                  ints(_rows(cm.faces, sizes["control_faces"])),
+                  ints(_rows(cm.outer, sizes["outer"], np.asarray(cm.outer[-1]))),
+                  energy.mvc_centre, ints(_rows(cm.handles, r))),
+         skinning, energy, factor,
+         real(_columns(_rows(rig.turns, c, np.asarray(rig.turns[0])), r))))
+
+
+def _check_stackable(rigs, what: str = "rigs") -> None:
+    from ._rig import Rig
+
+    if isinstance(rigs, Rig) or not isinstance(rigs, Sequence) or not len(rigs):
+        raise TypeError(f"Rig.stack takes a list of rigs (at least one), got "
+                        f"{type(rigs).__name__}.")
+    for i, rig in enumerate(rigs):
+        if not isinstance(rig, Rig):
+            raise TypeError(f"{what}[{i}] is a {type(rig).__name__}, not an mvcjax.Rig.")
+        if rig.frame.scale.ndim:
+            raise ValueError(f"{what}[{i}] is a stack already; stack the rigs it was made "
+                             "of with the others.")
+    first = rigs[0]
+    layout = (first.handles.count, np.asarray(first.handles.bones).tolist())
+    for i, rig in enumerate(rigs[1:], 1):
+        if rig.energy.rest.dtype != first.energy.rest.dtype:
+            raise ValueError(
+                f"{what}[{i}] is {rig.energy.rest.dtype.name}, {what}[0] "
+                f"{first.energy.rest.dtype.name}: a stack holds one dtype; build them all "
+                "with the same Rig.build(..., dtype=...).")
+        if (rig.handles.count, np.asarray(rig.handles.bones).tolist()) != layout:
+            raise ValueError(
+                f"{what}[{i}] has {rig.handles.count} target rows (bones at rows "
+                f"{np.asarray(rig.handles.bones).tolist()}), {what}[0] {layout[0]} (bones at "
+                f"rows {layout[1]}): stacked rigs are posed by one array of targets, so "
+                "they need the same handles' layout (as many point handles and bones, in "
+                "the same order); give every shape that many handles, or stack the rigs "
+                "by their handle count.")
+        if rig.skinning.method != first.skinning.method:
+            raise ValueError(
+                f"{what}[{i}] skins with {rig.skinning.method!r}, {what}[0] with "
+                f"{first.skinning.method!r}: build them with the same skinning=.")
+    for i, rig in enumerate(rigs):
+        if rig.energy.extra:
+            raise ValueError(f"{what}[{i}] has extra terms (Rig.with_terms): a stack's rigs "
+                             "share one energy's form; stack them without, then add none.")
+
+
+def stack_rigs(rigs: Any):
+    """One rig whose every array has a leading axis over `rigs`, padded to common sizes
+    (see the module's docstring); `Rig.stack` documents it."""
+    _check_stackable(rigs)
+    sizes = common_sizes(rigs)
+    c, itemsize = sizes["control_vertices"], rigs[0].energy.rest.dtype.itemsize
+    # G's two parts, N and its inverse: about five c x c matrices a rig.
+    factor_bytes = len(rigs) * 5 * c * c * itemsize
+    if factor_bytes > _FACTOR_LIMIT_BYTES:
+        raise ValueError(
+            f"A stack of {len(rigs)} rigs of up to {c} control vertices needs dense factors "
+            f"of about {factor_bytes / 2**30:.1f} GiB (a stack solves with a dense G, "
+            "whatever each rig's factor): stack fewer rigs at a time, or build them with "
+            "a coarser PaperControl(spacing=...).")
+    energies = [_padded_energy(r.energy, sizes) for r in rigs]
+    skinnings = _skinnings(rigs, sizes)
+    factors = _factors(energies)
+    padded = [_pad_rig(r, sizes, s, f, e)
+              for r, s, f, e in zip(rigs, skinnings, factors, energies)]
+    return jax.tree.map(lambda *leaves: jnp.stack(leaves), *padded)
+
+
+def stack_renderers(renderers: Any):
+    """One renderer whose arrays have a leading axis over `renderers`; `Renderer.stack`
+    documents it."""
+    from ._render import Renderer, stack_tiling
+
+    if isinstance(renderers, Renderer) or not isinstance(renderers, Sequence) or not len(
+            renderers):
+        raise TypeError(f"Renderer.stack takes a list of renderers (at least one), got "
+                        f"{type(renderers).__name__}.")
+    for i, r in enumerate(renderers):
+        if not isinstance(r, Renderer):
+            raise TypeError(f"renderers[{i}] is a {type(r).__name__}, not an mvcjax.Renderer "
+                            "(a layered character's renderer does not stack).")
+        if r.window.ndim != 1:
+            raise ValueError(f"renderers[{i}] is a stack already; stack the renderers it was "
+                             "made of with the others.")
+    first = renderers[0]
+    for i, r in enumerate(renderers[1:], 1):
+        for name, what in [("shape", "picture size (rows, cols)"),
+                           ("antialias", "antialias="), ("see_through", "alpha="),
+                           ]:
+            if getattr(r, name) != getattr(first, name):
+                raise ValueError(
+                    f"renderers[{i}] has {what} {getattr(r, name)}, renderers[0] "
+                    f"{getattr(first, name)}: a stack draws every picture alike; build them "
+                    f"with the same {what.split(' ')[0]}.")
+        if r.texture.dtype != first.texture.dtype:
+            raise ValueError(f"renderers[{i}] is {r.texture.dtype.name}, renderers[0] "
+                             f"{first.texture.dtype.name}: build them with the same dtype=.")
+    tile, budget = stack_tiling(renderers)
+    n = max(r.rest.shape[0] for r in renderers)
+    f = max(r.faces.shape[0] for r in renderers)
+    h = max(r.texture.shape[0] for r in renderers)
+    w = max(r.texture.shape[1] for r in renderers)
+    padded = []
+    for r in renderers:
+        dtype = r.texture.dtype
+        texture = np.asarray(r.texture)
+        # Edge rows and columns repeated: the texture lookup clamps at its edge, and
+        # reads the same there.
+        texture = np.pad(texture, ((0, h - texture.shape[0]), (0, w - texture.shape[1]),
+                                   (0, 0)), mode="edge")
+        r = dataclasses.replace(r, tile=tile, budget=budget)
+        padded.append(eqx.tree_at(
+            lambda r: (r.faces, r.boundary, r.texture_points, r.texture, r.rest, r.level), r,
+            (to_device(_rows(r.faces, f), np.int32), to_device(_rows(r.boundary, f), bool),
+             to_device(_rows(r.texture_points, n, np.asarray(r.texture_points[0])), dtype),
+             to_device(texture, dtype),
+             to_device(_rows(r.rest, n, np.asarray(r.rest[0])), dtype),
+             to_device(_rows(r.level, f), np.int32))))
+    return jax.tree.map(lambda *leaves: jnp.stack(leaves), *padded)
