@@ -11,7 +11,7 @@ fails, naming the page and the table, where a page differs from what its results
     python benchmarks/tables.py --check   # exit 1 if a table is stale, naming it
 
 The pages and their tables: `docs/benchmarks.md` (deform, solvers, frames, throughput,
-many rigs, interact, render), `docs/paper.md` (table1), `docs/folds.md` (folds, written by
+many rigs, stack, interact, render), `docs/paper.md` (table1), `docs/folds.md` (folds, written by
 `folds.format_tables` as `benchmarks/folds.py --table ... --docs ...` writes it) and
 `docs/robustness.md` (robustness, once its results file exists) and `docs/guide.md`
 (jit-method, in its design notes).
@@ -32,6 +32,7 @@ import jit_method
 import many_rigs
 import robustness
 import solvers
+import stack
 import table1
 import throughput
 import vmap_rules
@@ -386,6 +387,11 @@ def many_rigs_table(data: dict, source: str) -> str:
     return _measured_on(data, source) + "\n\n" + many_rigs.format_table(data)
 
 
+def stack_table(data: dict, source: str) -> str:
+    """`benchmarks/stack.py`: glyphs posed and drawn as a stack, and in a loop."""
+    return _measured_on(data, source) + "\n\n" + stack.format_table(data)
+
+
 def dataset_table(data: dict, source: str) -> str:
     """`benchmarks/dataset.py`: posed pictures written per second."""
     return _measured_on(data, source) + "\n\n" + dataset.format_table(data)
@@ -449,6 +455,7 @@ TABLES = [
     Table(BENCHMARKS, "throughput-batch", _results("throughput"), throughput_batch_table),
     Table(BENCHMARKS, "throughput-floors", _results("throughput"), throughput_floors_table),
     Table(BENCHMARKS, "many-rigs", _results("many_rigs"), many_rigs_table),
+    Table(BENCHMARKS, "stack", _results("stack"), stack_table),
     Table(BENCHMARKS, "dataset", _results("dataset"), dataset_table),
     Table(BENCHMARKS, "interact", _results("interact"), interact_table),
     Table(BENCHMARKS, "live", _results("live"), live_table),

@@ -24,10 +24,9 @@ from typing import Any
 
 import equinox as eqx
 import jax
-import jax.numpy as jnp
 import numpy as np
 
-from ._factor import DenseFactor, dense_factor
+from ._factor import DenseFactor, _local_stencil, dense_factor
 from ._skinning import (
     BLOCK_ROWS,
     Skinning,
@@ -36,6 +35,8 @@ from ._skinning import (
     pack_rows,
     tile_rows,
 )
+from ._programs import note_size
+from ._stencils import transpose_table
 from ._xla import to_device
 
 # Past this many bytes of dense factors in one stack, stacking says so instead of
@@ -58,6 +59,13 @@ def _columns(a: Any, width: int, fill: Any = 0) -> np.ndarray:
 def _pad_to(a: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     """`a` padded with zeros at the end of every axis up to `shape`."""
     return np.pad(a, [(0, s - n) for s, n in zip(shape, a.shape)])
+
+
+def _stacked(trees: list) -> Any:
+    """The trees' leaves stacked, on the host (stacking on the device compiles a program
+    for every leaf's shape)."""
+    return jax.tree.map(lambda *leaves: to_device(np.stack([np.asarray(x) for x in leaves]),
+                                                  leaves[0].dtype), *trees)
 
 
 def _sizes(rig) -> dict[str, int]:
@@ -99,7 +107,7 @@ def _padded_energy(energy, sizes: dict[str, int]):
     laplacian, edges, pinned = sizes["laplacian"], sizes["edges"], sizes["pinned"]
     dtype = e.rest.dtype
     arrays = dict(
-        rest=_rows(e.rest, c, np.asarray(e.rest[0])),
+        rest=_rows(e.rest, c, np.asarray(e.rest)[0]),
         laplacian_index=_rows(e.laplacian_index, laplacian),
         laplacian_length=_rows(e.laplacian_length, laplacian),
         mvc_centre=_rows(np.concatenate([np.asarray(e.mvc_centre), holders]), g),
@@ -119,8 +127,11 @@ def _padded_energy(energy, sizes: dict[str, int]):
 def _padded_rows(skinning: Skinning, count: int, width: int):
     """The skinning's rows `(indices, weights)` on the host, padded to `count` rows (each
     a copy of row 0) and `width` entries (weight zero)."""
-    index = np.asarray(skinning.indices, np.int64)
-    weight = np.asarray(skinning.weights, np.float64)
+    # On the host: the device's own gathers would compile a program for every size.
+    tile_index, tile_weight = np.asarray(skinning.tile_indices), np.asarray(skinning.tile_weights)
+    slots, s = np.asarray(skinning.slots), tile_weight.shape[2]
+    index = tile_index[:, slots // s].T.astype(np.int64)
+    weight = tile_weight[:, slots // s, slots % s].T.astype(np.float64)
     return (_rows(_columns(index, width), count, _columns(index, width)[0]),
             _rows(_columns(weight, width), count, _columns(weight, width)[0]))
 
@@ -155,8 +166,17 @@ def _skinnings(rigs, sizes: dict[str, int]) -> list[Skinning]:
 
 def _factors(energies) -> list[DenseFactor]:
     """Dense factors of the padded energies, their spread tables padded alike (entry 0
-    with coefficient zero adds nothing)."""
-    factors = [dense_factor(e) for e in energies]
+    with coefficient zero adds nothing).
+
+    The padded rows, all on one vertex, are left out of the tables: they are zero
+    vectors, and listed they would make the table as wide as their count."""
+    factors = []
+    for energy in energies:
+        rows, coef = (np.asarray(a) for a in _local_stencil(energy))
+        zero = (rows == rows[:, :1]).all(axis=1)
+        spread = transpose_table(rows, np.where(zero[:, None], 0.0, coef),
+                                 energy.num_vertices)
+        factors.append(dense_factor(energy, spread))
     width = max(f.spread.shape[1] for f in factors)
     return [eqx.tree_at(lambda f: (f.spread, f.spread_coef), f,
                         (to_device(_columns(f.spread, width), np.int32),
@@ -178,14 +198,14 @@ def _pad_rig(rig, sizes: dict[str, int], skinning: Skinning, factor: DenseFactor
         (ints(_rows(h.first, r)), ints(_rows(h.second, r)), real(_rows(h.along, r)),
          real(_rows(h.length, r)), to_device(_rows(h.rigid, r), bool),
          to_device(_rows(h.padding, r, True), bool),
-         type(sm)(real(_rows(sm.vertices, n, np.asarray(sm.vertices[0]))),
+         type(sm)(real(_rows(sm.vertices, n, np.asarray(sm.vertices)[0])),
                   ints(_rows(sm.faces, sizes["shape_faces"])), ints(_rows(sm.handles, r))),
-         type(cm)(real(_rows(cm.vertices, c, np.asarray(cm.vertices[0]))),
+         type(cm)(real(_rows(cm.vertices, c, np.asarray(cm.vertices)[0])),
                   ints(_rows(cm.faces, sizes["control_faces"])),
-                  ints(_rows(cm.outer, sizes["outer"], np.asarray(cm.outer[-1]))),
+                  ints(_rows(cm.outer, sizes["outer"], np.asarray(cm.outer)[-1])),
                   energy.mvc_centre, ints(_rows(cm.handles, r))),
          skinning, energy, factor,
-         real(_columns(_rows(rig.turns, c, np.asarray(rig.turns[0])), r))))
+         real(_columns(_rows(rig.turns, c, np.asarray(rig.turns)[0]), r))))
 
 
 def _check_stackable(rigs, what: str = "rigs") -> None:
@@ -245,7 +265,9 @@ def stack_rigs(rigs: Any):
     factors = _factors(energies)
     padded = [_pad_rig(r, sizes, s, f, e)
               for r, s, f, e in zip(rigs, skinnings, factors, energies)]
-    return jax.tree.map(lambda *leaves: jnp.stack(leaves), *padded)
+    stack = _stacked(padded)
+    note_size(stack)  # a bounded number of sizes' programs kept (`_programs`)
+    return stack
 
 
 def stack_renderers(renderers: Any):
@@ -294,8 +316,8 @@ def stack_renderers(renderers: Any):
         padded.append(eqx.tree_at(
             lambda r: (r.faces, r.boundary, r.texture_points, r.texture, r.rest, r.level), r,
             (to_device(_rows(r.faces, f), np.int32), to_device(_rows(r.boundary, f), bool),
-             to_device(_rows(r.texture_points, n, np.asarray(r.texture_points[0])), dtype),
+             to_device(_rows(r.texture_points, n, np.asarray(r.texture_points)[0]), dtype),
              to_device(texture, dtype),
-             to_device(_rows(r.rest, n, np.asarray(r.rest[0])), dtype),
+             to_device(_rows(r.rest, n, np.asarray(r.rest)[0]), dtype),
              to_device(_rows(r.level, f), np.int32))))
-    return jax.tree.map(lambda *leaves: jnp.stack(leaves), *padded)
+    return _stacked(padded)
