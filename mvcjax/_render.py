@@ -392,7 +392,7 @@ class Renderer(JittableModule):
         )
 
     @classmethod
-    def stack(cls, renderers: Any) -> Renderer:
+    def stack(cls, renderers: Any, *, like: Any = None) -> Renderer:
         """Renderers of different meshes and pictures as one batched renderer, for
         `jax.vmap`: `jax.vmap(lambda r, v: r(v))(stack, vertices)` draws pose `i` with
         renderer `i`, and a second `vmap` over frames, `jax.vmap(lambda r, f:
@@ -407,10 +407,13 @@ class Renderer(JittableModule):
 
         Args:
             renderers: a list of renderers (`Renderer.build`).
+            like: another stack of renderers, whose sizes (and tiles) these are padded
+                to, so that the stack reuses the programs compiled for it (as
+                `Rig.stack`'s `like`).
         """
         from ._stack import stack_renderers
 
-        return stack_renderers(renderers)
+        return stack_renderers(renderers, like)
 
     def __call__(
         self, vertices: Float[ArrayLike, "n 2"], window: Any = None

@@ -356,7 +356,7 @@ class Rig(JittableModule):
         return rig
 
     @classmethod
-    def stack(cls, rigs: Any) -> Rig:
+    def stack(cls, rigs: Any, *, like: Any = None) -> Rig:
         """Rigs of different shapes as one batched rig, for `jax.vmap`:
         `jax.vmap(lambda r, t: r.deform(t))(stack, targets)` poses them all in one
         compiled program, with `targets` of shape `(len(rigs), h, 2)` (nest a second
@@ -372,10 +372,15 @@ class Rig(JittableModule):
         Args:
             rigs: a list of rigs with the same handles' layout (as many target rows,
                 bones at the same rows), one dtype and one skinning method.
+            like: another stack, whose sizes these rigs are padded to (instead of the
+                largest among them), so that the stack reuses the programs compiled
+                for it: batches of rigs (a font's glyphs, 100 at a time) padded like
+                a stack of the largest compile once. A rig that does not fit is
+                refused.
         """
         from ._stack import stack_rigs
 
-        return stack_rigs(rigs)
+        return stack_rigs(rigs, like)
 
     @property
     def stacked(self) -> int | None:

@@ -27,6 +27,7 @@ import jax
 import numpy as np
 
 from ._factor import DenseFactor, _local_stencil, dense_factor
+from ._programs import note_size
 from ._skinning import (
     BLOCK_ROWS,
     Skinning,
@@ -35,7 +36,6 @@ from ._skinning import (
     pack_rows,
     tile_rows,
 )
-from ._programs import note_size
 from ._stencils import transpose_table
 from ._xla import to_device
 
@@ -58,7 +58,13 @@ def _columns(a: Any, width: int, fill: Any = 0) -> np.ndarray:
 
 def _pad_to(a: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     """`a` padded with zeros at the end of every axis up to `shape`."""
+    if any(n > s for s, n in zip(shape, a.shape)):
+        raise _TooLarge(f"skinning tables of shape {a.shape}, beyond {shape}")
     return np.pad(a, [(0, s - n) for s, n in zip(shape, a.shape)])
+
+
+class _TooLarge(ValueError):
+    """A rig larger than the stack it is to be padded like."""
 
 
 def _stacked(trees: list) -> Any:
@@ -69,19 +75,20 @@ def _stacked(trees: list) -> Any:
 
 
 def _sizes(rig) -> dict[str, int]:
+    """A rig's sizes (a stack's too: counted from the last axes)."""
     e = rig.energy
     return dict(
-        shape_vertices=rig.shape_mesh.vertices.shape[0],
-        shape_faces=rig.shape_mesh.faces.shape[0],
-        control_vertices=e.rest.shape[0],
-        control_faces=e.faces.shape[0],
-        outer=rig.control_mesh.outer.shape[0],
-        laplacian=e.laplacian_index.shape[0],
-        ring=e.mvc_ring.shape[1],
-        edges=e.edges.shape[0],
-        pinned=e.handles.shape[0],
-        pin_width=e.handles.shape[1],
-        skin_width=rig.skinning.tile_indices.shape[0],
+        shape_vertices=rig.shape_mesh.vertices.shape[-2],
+        shape_faces=rig.shape_mesh.faces.shape[-2],
+        control_vertices=e.rest.shape[-2],
+        control_faces=e.faces.shape[-2],
+        outer=rig.control_mesh.outer.shape[-1],
+        laplacian=e.laplacian_index.shape[-2],
+        ring=e.mvc_ring.shape[-1],
+        edges=e.edges.shape[-2],
+        pinned=e.handles.shape[-2],
+        pin_width=e.handles.shape[-1],
+        skin_width=rig.skinning.tile_indices.shape[-2],
     )
 
 
@@ -136,23 +143,29 @@ def _padded_rows(skinning: Skinning, count: int, width: int):
             _rows(_columns(weight, width), count, _columns(weight, width)[0]))
 
 
-def _skinnings(rigs, sizes: dict[str, int]) -> list[Skinning]:
+def _skinnings(rigs, sizes: dict[str, int], like: Skinning | None) -> list[Skinning]:
     """The rigs' skinnings packed alike: one tile size, tiles and blocks padded with
-    zero weights to the largest count and width."""
+    zero weights to the largest count and width (or to those of `like`, a stack's)."""
     rows = [_padded_rows(r.skinning, sizes["shape_vertices"], sizes["skin_width"])
             for r in rigs]
-    tile = max(tile_rows(index) for index, _ in rows)
+    tile = (max(tile_rows(index) for index, _ in rows) if like is None
+            else like.tile_weights.shape[-1])
     tiles = [pack_rows(index, weight, tile) for index, weight in rows]
     blocks = [pack_blocks(index, weight, BLOCK_ROWS, block_width_limit(index.shape[1]))
               for index, weight in rows]
-    if any(b is None for b in blocks):  # one rig's rows too scattered: none blocked
+    unblocked = like is not None and like.block_weights.shape[-3] == 0
+    if unblocked or any(b is None for b in blocks):  # rows too scattered: none blocked
         blocks = [(np.zeros((0, 1), np.int64), np.zeros((0, 1, BLOCK_ROWS)))] * len(rows)
 
-    def most(arrays) -> tuple[int, ...]:
-        return tuple(int(s) for s in np.max([a.shape for a in arrays], axis=0))
+    def most(arrays, given) -> tuple[int, ...]:
+        if like is not None:
+            return tuple(int(n) for n in given.shape[1:])
+        return tuple(int(n) for n in np.max([a.shape for a in arrays], axis=0))
 
-    tile_index, tile_weight = most([t[0] for t in tiles]), most([t[1] for t in tiles])
-    block_index, block_weight = most([b[0] for b in blocks]), most([b[1] for b in blocks])
+    tile_index = most([t[0] for t in tiles], getattr(like, "tile_indices", None))
+    tile_weight = most([t[1] for t in tiles], getattr(like, "tile_weights", None))
+    block_index = most([b[0] for b in blocks], getattr(like, "block_indices", None))
+    block_weight = most([b[1] for b in blocks], getattr(like, "block_weights", None))
     out = []
     for rig, (ti, tw, slot), (bi, bw) in zip(rigs, tiles, blocks):
         dtype = rig.energy.rest.dtype
@@ -164,9 +177,9 @@ def _skinnings(rigs, sizes: dict[str, int]) -> list[Skinning]:
     return out
 
 
-def _factors(energies) -> list[DenseFactor]:
+def _factors(energies, width: int | None) -> list[DenseFactor]:
     """Dense factors of the padded energies, their spread tables padded alike (entry 0
-    with coefficient zero adds nothing).
+    with coefficient zero adds nothing), to the widest or to `width`.
 
     The padded rows, all on one vertex, are left out of the tables: they are zero
     vectors, and listed they would make the table as wide as their count."""
@@ -177,7 +190,9 @@ def _factors(energies) -> list[DenseFactor]:
         spread = transpose_table(rows, np.where(zero[:, None], 0.0, coef),
                                  energy.num_vertices)
         factors.append(dense_factor(energy, spread))
-    width = max(f.spread.shape[1] for f in factors)
+    width = max(f.spread.shape[1] for f in factors) if width is None else width
+    if any(f.spread.shape[1] > width for f in factors):
+        raise _TooLarge(f"a control vertex in more rows than {width}")
     return [eqx.tree_at(lambda f: (f.spread, f.spread_coef), f,
                         (to_device(_columns(f.spread, width), np.int32),
                          to_device(_columns(f.spread_coef, width), f.spread_coef.dtype)))
@@ -246,11 +261,20 @@ def _check_stackable(rigs, what: str = "rigs") -> None:
                              "share one energy's form; stack them without, then add none.")
 
 
-def stack_rigs(rigs: Any):
+def stack_rigs(rigs: Any, like: Any = None):
     """One rig whose every array has a leading axis over `rigs`, padded to common sizes
-    (see the module's docstring); `Rig.stack` documents it."""
+    (see the module's docstring), or to those of the stack `like`; `Rig.stack`
+    documents it."""
     _check_stackable(rigs)
     sizes = common_sizes(rigs)
+    if like is not None:
+        _check_like(rigs, like)
+        given = {**_sizes(like), "mvc": like.energy.mvc_centre.shape[-1]}
+        over = [f"{k.replace('_', ' ')} {sizes[k]} > {given[k]}" for k in sizes
+                if sizes[k] > given[k]]
+        if over:
+            raise ValueError(_too_large(", ".join(over)))
+        sizes = given
     c, itemsize = sizes["control_vertices"], rigs[0].energy.rest.dtype.itemsize
     # G's two parts, N and its inverse: about five c x c matrices a rig.
     factor_bytes = len(rigs) * 5 * c * c * itemsize
@@ -261,8 +285,11 @@ def stack_rigs(rigs: Any):
             "whatever each rig's factor): stack fewer rigs at a time, or build them with "
             "a coarser PaperControl(spacing=...).")
     energies = [_padded_energy(r.energy, sizes) for r in rigs]
-    skinnings = _skinnings(rigs, sizes)
-    factors = _factors(energies)
+    try:
+        skinnings = _skinnings(rigs, sizes, None if like is None else like.skinning)
+        factors = _factors(energies, None if like is None else like.factor.spread.shape[-1])
+    except _TooLarge as e:
+        raise ValueError(_too_large(str(e))) from None
     padded = [_pad_rig(r, sizes, s, f, e)
               for r, s, f, e in zip(rigs, skinnings, factors, energies)]
     stack = _stacked(padded)
@@ -270,9 +297,32 @@ def stack_rigs(rigs: Any):
     return stack
 
 
-def stack_renderers(renderers: Any):
-    """One renderer whose arrays have a leading axis over `renderers`; `Renderer.stack`
-    documents it."""
+def _too_large(what: str) -> str:
+    return (f"These rigs do not fit the sizes of the stack given as like= ({what}): stack "
+            "them without like=, or make like= a stack of larger rigs (the largest of all "
+            "the batches, say).")
+
+
+def _check_like(rigs, like) -> None:
+    from ._rig import Rig
+
+    if not isinstance(like, Rig) or like.stacked is None:
+        raise TypeError(f"like= takes a stack (Rig.stack), got {type(like).__name__}"
+                        + ("" if not isinstance(like, Rig) else " (a single rig)") + ".")
+    first = rigs[0]
+    same = (like.handles.rest.shape[-2] == first.handles.count
+            and np.array_equal(np.asarray(like.handles.bones)[0],
+                               np.asarray(first.handles.bones))
+            and like.energy.rest.dtype == first.energy.rest.dtype
+            and like.skinning.method == first.skinning.method)
+    if not same:
+        raise ValueError("like= is a stack of rigs with another handles' layout, dtype or "
+                         "skinning method than these: stack like rigs like it.")
+
+
+def stack_renderers(renderers: Any, like: Any = None):
+    """One renderer whose arrays have a leading axis over `renderers` (padded to the
+    largest, or like the stack `like`); `Renderer.stack` documents it."""
     from ._render import Renderer, stack_tiling
 
     if isinstance(renderers, Renderer) or not isinstance(renderers, Sequence) or not len(
@@ -286,24 +336,34 @@ def stack_renderers(renderers: Any):
         if r.window.ndim != 1:
             raise ValueError(f"renderers[{i}] is a stack already; stack the renderers it was "
                              "made of with the others.")
-    first = renderers[0]
-    for i, r in enumerate(renderers[1:], 1):
+    if like is not None and (not isinstance(like, Renderer) or like.window.ndim != 2):
+        raise TypeError(f"like= takes a stack of renderers (Renderer.stack), got "
+                        f"{type(like).__name__}.")
+    first, other = (renderers[0], "renderers[0]") if like is None else (like, "like=")
+    for i, r in enumerate(renderers):
         for name, what in [("shape", "picture size (rows, cols)"),
                            ("antialias", "antialias="), ("see_through", "alpha="),
                            ]:
             if getattr(r, name) != getattr(first, name):
                 raise ValueError(
-                    f"renderers[{i}] has {what} {getattr(r, name)}, renderers[0] "
+                    f"renderers[{i}] has {what} {getattr(r, name)}, {other} "
                     f"{getattr(first, name)}: a stack draws every picture alike; build them "
                     f"with the same {what.split(' ')[0]}.")
         if r.texture.dtype != first.texture.dtype:
-            raise ValueError(f"renderers[{i}] is {r.texture.dtype.name}, renderers[0] "
+            raise ValueError(f"renderers[{i}] is {r.texture.dtype.name}, {other} "
                              f"{first.texture.dtype.name}: build them with the same dtype=.")
-    tile, budget = stack_tiling(renderers)
-    n = max(r.rest.shape[0] for r in renderers)
-    f = max(r.faces.shape[0] for r in renderers)
-    h = max(r.texture.shape[0] for r in renderers)
-    w = max(r.texture.shape[1] for r in renderers)
+    sizes = [(r.rest.shape[0], r.faces.shape[0], *r.texture.shape[:2]) for r in renderers]
+    if like is None:
+        tile, budget = stack_tiling(renderers)
+        n, f, h, w = np.max(sizes, axis=0).tolist()
+    else:
+        tile, budget = like.tile, like.budget
+        n, f, h, w = like.rest.shape[1], like.faces.shape[1], *like.texture.shape[1:3]
+        names = ["vertices", "triangles", "picture rows", "picture columns"]
+        over = [f"renderers[{i}] has {a} {k}, like= {b}" for i, size in enumerate(sizes)
+                for k, a, b in zip(names, size, (n, f, h, w)) if a > b]
+        if over:
+            raise ValueError(_too_large("; ".join(over[:3])).replace("rigs", "renderers"))
     padded = []
     for r in renderers:
         dtype = r.texture.dtype

@@ -166,11 +166,12 @@ def test_a_stack_of_renderers_draws_each_picture_as_alone(rigs64):
     grad = jax.jit(jax.grad(loss))(poses[:, 0])
     for i, (rig, renderer) in enumerate(zip(rigs64, renderers)):
         n = rig.shape_mesh.vertices.shape[0]
-        alone = jax.grad(lambda v: jnp.sum(renderer(v)[..., :3] ** 2))(poses[i, 0, :n])
+        alone = jax.grad(lambda v, d=renderer: jnp.sum(d(v)[..., :3] ** 2))(poses[i, 0, :n])
         np.testing.assert_allclose(grad[i, :n], alone, rtol=1e-8, atol=1e-10)
         np.testing.assert_array_equal(grad[i, n:], 0.0)
 
 
+@pytest.mark.float64
 def test_stacks_refuse_what_cannot_be_stacked(rigs64):
     rigs = star_rigs(jnp.float32)
     with pytest.raises(ValueError, match="same handles' layout"):
@@ -195,3 +196,44 @@ def test_stacks_refuse_what_cannot_be_stacked(rigs64):
         mvcjax.Renderer.stack([small, mvcjax.Renderer.build(rigs[1], size=(16, 20))])
     with pytest.raises(TypeError, match="list of renderers"):
         mvcjax.Renderer.stack(small)
+
+
+def test_a_stack_padded_like_another_reuses_its_program():
+    rigs = star_rigs(jnp.float32)
+    big = mvcjax.Rig.stack(rigs)
+    pose = jax.jit(jax.vmap(lambda r, t: r.deform(t)))
+    pose(big, targets_for(rigs))
+    # Another batch of as many rigs, none larger: padded like the first, one program.
+    polygon = star(5, 20.0, 10.0, (3.0, 3.0))  # the first star, twice as large
+    shape = mvcjax.Shape.from_polygon(polygon)
+    other = mvcjax.Rig.build(shape, [tuple(3.0 + 0.3 * (p - 3.0)) for p in polygon[::2][:3]],
+                             shape_spacing=shape.diagonal / 30)
+    batch = [other, rigs[0], rigs[0]]
+    stack = mvcjax.Rig.stack(batch, like=big)
+    assert (jax.tree.map(lambda a: a.shape, stack) == jax.tree.map(lambda a: a.shape, big))
+    targets = targets_for(batch, seed=6)
+    out = pose(stack, targets)
+    assert pose._cache_size() == 1
+    for i, rig in enumerate(batch):
+        alone = rig.deform(targets[i])
+        np.testing.assert_allclose(out[i, :alone.shape[0]], alone,
+                                   atol=2e-5 * float(rig.frame.scale))
+    # Their renderers alike.
+    draw = jax.jit(jax.vmap(lambda d, v: d(v)))
+    drawn = mvcjax.Renderer.stack([mvcjax.Renderer.build(r, size=(24, 24)) for r in rigs])
+    draw(drawn, pose(big, targets_for(rigs)))
+    renderers = [mvcjax.Renderer.build(r, size=(24, 24)) for r in batch]
+    like = mvcjax.Renderer.stack(renderers, like=drawn)
+    pictures = draw(like, out)
+    assert draw._cache_size() == 1
+    for i, (rig, renderer) in enumerate(zip(batch, renderers)):
+        np.testing.assert_allclose(pictures[i], renderer(out[i, :rig.shape_mesh.vertices.shape[0]]),
+                                   atol=1e-6)
+    with pytest.raises(ValueError, match="do not fit"):
+        mvcjax.Renderer.stack([mvcjax.Renderer.build(r, size=(24, 24)) for r in rigs],
+                              like=mvcjax.Renderer.stack(renderers[:1]))
+    # Rigs larger than the stack given are refused, naming the sizes.
+    with pytest.raises(ValueError, match="do not fit the sizes of the stack"):
+        mvcjax.Rig.stack(rigs, like=mvcjax.Rig.stack([other]))
+    with pytest.raises(TypeError, match="takes a stack"):
+        mvcjax.Rig.stack(batch, like=other)
