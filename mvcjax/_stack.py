@@ -94,11 +94,11 @@ def _sizes(rig) -> dict[str, int]:
 
 def common_sizes(rigs: Sequence[Any]) -> dict[str, int]:
     """The sizes every rig of `rigs` pads to: the largest of each. The mean value rows
-    also hold each rig's padded control vertices, one row each."""
+    are as many as the control vertices: each rig's own (its inner vertices) and one to
+    hold each padded vertex always fit, whatever stack a rig is padded like."""
     sizes = [_sizes(r) for r in rigs]
     common = {k: max(s[k] for s in sizes) for k in sizes[0]}
-    common["mvc"] = max(r.energy.mvc_centre.shape[0] + common["control_vertices"]
-                        - s["control_vertices"] for r, s in zip(rigs, sizes))
+    common["mvc"] = common["control_vertices"]
     return common
 
 
@@ -223,7 +223,7 @@ def _pad_rig(rig, sizes: dict[str, int], skinning: Skinning, factor: DenseFactor
          real(_columns(_rows(rig.turns, c, np.asarray(rig.turns)[0]), r))))
 
 
-def _check_stackable(rigs, what: str = "rigs") -> None:
+def _check_stackable(rigs) -> None:
     from ._rig import Rig
 
     if isinstance(rigs, Rig) or not isinstance(rigs, Sequence) or not len(rigs):
@@ -231,33 +231,33 @@ def _check_stackable(rigs, what: str = "rigs") -> None:
                         f"{type(rigs).__name__}.")
     for i, rig in enumerate(rigs):
         if not isinstance(rig, Rig):
-            raise TypeError(f"{what}[{i}] is a {type(rig).__name__}, not an mvcjax.Rig.")
+            raise TypeError(f"rigs[{i}] is a {type(rig).__name__}, not an mvcjax.Rig.")
         if rig.frame.scale.ndim:
-            raise ValueError(f"{what}[{i}] is a stack already; stack the rigs it was made "
+            raise ValueError(f"rigs[{i}] is a stack already; stack the rigs it was made "
                              "of with the others.")
     first = rigs[0]
     layout = (first.handles.count, np.asarray(first.handles.bones).tolist())
     for i, rig in enumerate(rigs[1:], 1):
         if rig.energy.rest.dtype != first.energy.rest.dtype:
             raise ValueError(
-                f"{what}[{i}] is {rig.energy.rest.dtype.name}, {what}[0] "
+                f"rigs[{i}] is {rig.energy.rest.dtype.name}, rigs[0] "
                 f"{first.energy.rest.dtype.name}: a stack holds one dtype; build them all "
                 "with the same Rig.build(..., dtype=...).")
         if (rig.handles.count, np.asarray(rig.handles.bones).tolist()) != layout:
             raise ValueError(
-                f"{what}[{i}] has {rig.handles.count} target rows (bones at rows "
-                f"{np.asarray(rig.handles.bones).tolist()}), {what}[0] {layout[0]} (bones at "
+                f"rigs[{i}] has {rig.handles.count} target rows (bones at rows "
+                f"{np.asarray(rig.handles.bones).tolist()}), rigs[0] {layout[0]} (bones at "
                 f"rows {layout[1]}): stacked rigs are posed by one array of targets, so "
                 "they need the same handles' layout (as many point handles and bones, in "
                 "the same order); give every shape that many handles, or stack the rigs "
                 "by their handle count.")
         if rig.skinning.method != first.skinning.method:
             raise ValueError(
-                f"{what}[{i}] skins with {rig.skinning.method!r}, {what}[0] with "
+                f"rigs[{i}] skins with {rig.skinning.method!r}, rigs[0] with "
                 f"{first.skinning.method!r}: build them with the same skinning=.")
     for i, rig in enumerate(rigs):
         if rig.energy.extra:
-            raise ValueError(f"{what}[{i}] has extra terms (Rig.with_terms): a stack's rigs "
+            raise ValueError(f"rigs[{i}] has extra terms (Rig.with_terms): a stack's rigs "
                              "share one energy's form; stack them without, then add none.")
 
 
