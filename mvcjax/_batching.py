@@ -58,3 +58,18 @@ def only_batched(in_batched: Any, *mapped: int) -> bool:
         elif any(leaves):
             return False
     return True
+
+
+def one_after_another(fn, in_batched, args):
+    """`jax.vmap(fn)` as a loop (`jax.lax.map`) over the batched leaves of `args` (mapped
+    axis first, as a rule of `with_batching_rule` gets them; `in_batched` flags them),
+    the others closed over: a rule for work whose batch is best done item by item."""
+    leaves, tree = jax.tree.flatten(args)
+    flags = jax.tree.leaves(in_batched)
+
+    def one(batched):
+        it = iter(batched)
+        return fn(*jax.tree.unflatten(tree, [next(it) if b else x
+                                             for x, b in zip(leaves, flags)]))
+
+    return jax.lax.map(one, [x for x, b in zip(leaves, flags) if b])

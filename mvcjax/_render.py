@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from ._batching import with_batching_rule
+from ._batching import one_after_another, with_batching_rule
 from ._checks import as_devices, as_points, kind_of, whole_number
 from ._module import JittableModule
 from ._topology import on_boundary
@@ -542,20 +542,6 @@ def _grown(window, vertices, shape: tuple[int, int]):
     return jnp.concatenate([centre - half, centre + half])
 
 
-def _one_after_another(fn, in_batched, args):
-    """`jax.vmap(fn)` as a loop (`jax.lax.map`) over the batched leaves of `args`, the
-    others closed over."""
-    leaves, tree = jax.tree.flatten(args)
-    flags = jax.tree.leaves(in_batched)
-
-    def one(batched):
-        it = iter(batched)
-        return fn(*jax.tree.unflatten(tree, [next(it) if b else x
-                                             for x, b in zip(leaves, flags)]))
-
-    return jax.lax.map(one, [x for x, b in zip(leaves, flags) if b])
-
-
 def _draw_each(renderer: Renderer, vertices, window):
     """Pictures of `(f, n, 2)` poses in `(f, 4)` windows, one after another."""
     return jax.lax.map(lambda vw: _draw(renderer, *vw), (vertices, window))
@@ -564,7 +550,7 @@ def _draw_each(renderer: Renderer, vertices, window):
 def _draw_each_batched(size: int, in_batched, renderer: Renderer, vertices, window):
     # A batch of sequences (a stack of renderers, each with its frames): one sequence
     # after another, each drawn frame after frame.
-    return _one_after_another(_draw_each, in_batched, (renderer, vertices, window)), True
+    return one_after_another(_draw_each, in_batched, (renderer, vertices, window)), True
 
 
 _draw_sequence = with_batching_rule(_draw_each, _draw_each_batched)
@@ -580,7 +566,7 @@ def _draw_frames(frames: int, in_batched, renderer: Renderer, vertices, window):
     of characters by frames are then drawn picture by picture too. A batched renderer
     (a stack, or a draw order per frame) is looped over with the poses."""
     if any(jax.tree.leaves(in_batched[0])):
-        return _one_after_another(_draw, in_batched, (renderer, vertices, window)), True
+        return one_after_another(_draw, in_batched, (renderer, vertices, window)), True
     _, vertices_batched, window_batched = in_batched
     if not window_batched:
         window = jnp.broadcast_to(window, (frames, *window.shape))
