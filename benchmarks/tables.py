@@ -294,6 +294,14 @@ def render_table(data: dict, source: str) -> str:
              *_table(head, rows)]
     if targets:
         lines += ["", "Targets: " + "; ".join(targets) + "."]
+    against = [r for r in data["rows"] if "baseline_ref" in r]
+    for r in against:
+        size = r["size"].replace("x", " x ")
+        lines += ["", f"Against the renderer at commit `{r['baseline_ref']}`, the {size} "
+                  f"frame at {r['shape_vertices']} vertices timed in turns in the same run: "
+                  f"{_ms(r['interleaved_single_ms'])} now, {_ms(r['baseline_single_ms'])} "
+                  f"before, {_times(r['speedup_over_baseline'])} as fast (the pictures differ "
+                  f"by at most {r['baseline_max_pixel_difference']:.1e})."]
     return "\n".join(lines)
 
 

@@ -130,8 +130,8 @@ def _to_pixels(points, window, rows: int, cols: int):
 def _bounding_boxes(tri, fringe, rows: int, cols: int):
     """Each triangle's candidate pixels: first column and row, width and height (0 for a
     triangle off the picture or without area)."""
-    lo = jnp.ceil(tri.min(axis=1) - fringe[:, None])
-    hi = jnp.floor(tri.max(axis=1) + fringe[:, None])
+    lo = jnp.ceil(jnp.minimum(jnp.minimum(tri[:, 0], tri[:, 1]), tri[:, 2]) - fringe[:, None])
+    hi = jnp.floor(jnp.maximum(jnp.maximum(tri[:, 0], tri[:, 1]), tri[:, 2]) + fringe[:, None])
     limit = jnp.array([cols - 1, rows - 1], tri.dtype)
     lo = jnp.clip(lo, 0, limit)
     hi = jnp.clip(hi, -1, limit)
@@ -147,6 +147,10 @@ def _edge_distances(tri):
     """For each triangle, its three edges (ab, bc, ca) as `(normal, offset)`: the signed
     distance `normal . x + offset` of a point to the edge's line, in pixels, positive
     inside, whatever the triangle's orientation (a fold flips it)."""
+    # The sums stay reductions (not `_dot2`): these distances decide which triangle a
+    # pixel shows, and written-out products may be contracted differently in each
+    # program that inlines them (a frame, a batch, a user's jit), so that a pixel on a
+    # shared edge, and the gradient through it, would depend on how it was compiled.
     start = tri
     end = jnp.roll(tri, -1, axis=1)
     d = end - start
@@ -160,6 +164,13 @@ def _edge_distances(tri):
     normal = jnp.stack([-d[..., 1], d[..., 0]], axis=-1) * scale
     offset = -jnp.sum(normal * start, axis=-1)
     return normal, offset
+
+
+def _dot2(a, b):
+    """`sum(a * b, axis=-1)` over a last axis of two, written out: XLA's CPU backend
+    hands a reduction to a library call whose overhead, for a few thousand pairs, is
+    many times the arithmetic."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1]
 
 
 def check_drawn_mesh(renderer: Renderer, vertices, faces) -> None:
@@ -786,7 +797,7 @@ def stack_tiling(renderers) -> tuple[int, int]:
 def _tiles_across(corners, boundary, window, rows: int, cols: int, antialias: bool):
     # One compiled call at build time (cached by sizes) instead of dozens of eager ones.
     tri = _to_pixels(corners, window, rows, cols)
-    fringe = _fringes(boundary, antialias).max(axis=1)
+    fringe = _widest(_fringes(boundary, antialias))
     return [_tiles(tri, fringe, rows, cols, tile)[2] for tile in _TILES]
 
 
@@ -798,6 +809,11 @@ def _fringes(boundary, antialias: bool):
     if antialias:
         return jnp.where(boundary, _FRINGE + _EPS, _EPS)
     return jnp.full(boundary.shape, _EPS)
+
+
+def _widest(fringe):
+    """Each triangle's widest fringe of its three edges (written out as in `_dot2`)."""
+    return jnp.maximum(jnp.maximum(fringe[:, 0], fringe[:, 1]), fringe[:, 2])
 
 
 def _face_table(tri, texture_tri, boundary):
@@ -815,14 +831,15 @@ def _face_table(tri, texture_tri, boundary):
     opposite = jnp.array([1, 2, 0])
     n_opp = normal[:, opposite]
     start = relative[:, [1, 2, 0]]  # start of the edge opposite vertex k
-    height = jnp.sum(n_opp * (relative - start), axis=-1)
+    height = _dot2(n_opp, relative - start)
     height = jnp.where(jnp.abs(height) > 1e-12, height, 1.0)
     linear = n_opp / height[..., None]  # weight_k = linear_k . (p - a) + constant_k
-    uv_linear = jnp.einsum("fkt,fkd->ftd", texture_tri, linear)  # (f, 2 texture, 2 pixel)
+    # (f, 2 texture, 2 pixel), the sum over the corners written out as in `_dot2`.
+    uv_linear = sum(texture_tri[:, k, :, None] * linear[:, k, None, :] for k in range(3))
     far = jnp.asarray(1e6, tri.dtype)
     edge_normal = jnp.where(boundary[..., None], normal, 0.0)
     # Distance of `a` from edge k (starting at vertex k), inside positive.
-    edge_offset = jnp.where(boundary, jnp.sum(normal * (-relative), axis=-1), far)
+    edge_offset = jnp.where(boundary, -_dot2(normal, relative), far)
     edges = jnp.concatenate([edge_normal, edge_offset[..., None]], axis=-1)  # (f, 3, 3)
     return jnp.concatenate([uv_linear.reshape(-1, 4), a, texture_tri[:, 0],
                             edges.reshape(-1, 9)], axis=1)
@@ -838,7 +855,7 @@ def _raster(renderer: Renderer, tri, rows: int, cols: int):
     count = renderer.faces.shape[0]
     tile = renderer.tile
     fringe = _fringes(renderer.boundary, renderer.antialias).astype(tri.dtype)
-    first, last, across = _tiles(tri, fringe.max(axis=1), rows, cols, tile)
+    first, last, across = _tiles(tri, _widest(fringe), rows, cols, tile)
     tiles = across[:, 0] * across[:, 1]
     end = jnp.cumsum(tiles)
     total = end[-1]
@@ -870,16 +887,23 @@ def _raster(renderer: Renderer, tri, rows: int, cols: int):
         slot = index * _CHUNK + jnp.arange(_CHUNK, dtype=jnp.int32)
         face = jnp.clip(jnp.searchsorted(end, slot, side="right"), 0, count - 1)
         data = table[face]
-        n = data[:, :6].reshape(-1, 3, 2)
-        o_in, o_strict, o_cover = data[:, 6:9], data[:, 9:12], data[:, 12:15]
         first_t = data[:, 15:17].astype(jnp.int32)
-        last_t = data[:, 17:19].astype(jnp.int32)
         width = jnp.maximum(data[:, 19].astype(jnp.int32), 1)
         local = slot - data[:, 20].astype(jnp.int32)
-        col = (first_t[:, 0] + (local % width) * tile)[:, None, None] + offsets[None, None, :]
-        row = (first_t[:, 1] + (local // width) * tile)[:, None, None] + offsets[None, :, None]
-        valid = ((slot < total)[:, None, None] & (col <= last_t[:, 0, None, None])
-                 & (row <= last_t[:, 1, None, None]))
+        # The tile's own numbers, computed once per tile into memory: fused into each
+        # candidate pixel's arithmetic, XLA's CPU backend would redo the tile's lookups
+        # and divisions for each of its pixels, in each of the candidates' consumers.
+        corner = jnp.stack([first_t[:, 0] + (local % width) * tile,
+                            first_t[:, 1] + (local // width) * tile,
+                            jnp.where(slot < total, data[:, 17].astype(jnp.int32), -1),
+                            data[:, 18].astype(jnp.int32),
+                            level[face] * 2**_COVERAGE_BITS * 2**face_bits + face], axis=1)
+        data, corner = materialise((data, corner))
+        n = data[:, :6].reshape(-1, 3, 2)
+        o_in, o_strict, o_cover = data[:, 6:9], data[:, 9:12], data[:, 12:15]
+        col = corner[:, 0, None, None] + offsets[None, None, :]
+        row = corner[:, 1, None, None] + offsets[None, :, None]
+        valid = (col <= corner[:, 2, None, None]) & (row <= corner[:, 3, None, None])
         pixel = jnp.where(valid, row * cols + col, pixels)
         x, y = col.astype(tri.dtype), row.astype(tri.dtype)
         along = [n[:, k, 0, None, None] * x + n[:, k, 1, None, None] * y for k in range(3)]
@@ -893,10 +917,10 @@ def _raster(renderer: Renderer, tri, rows: int, cols: int):
         coverage = jnp.clip(0.5 + jnp.minimum(jnp.minimum(cover[0], cover[1]), cover[2]),
                             0.0, 1.0)
         steps = jnp.round(coverage * (2**_COVERAGE_BITS - 1)).astype(jnp.int32)
-        key = ((level[face] * 2**_COVERAGE_BITS)[:, None, None] + steps) * 2**face_bits \
-            + face[:, None, None]
-        front, beneath = layers
-        front = front.at[pixel].max(jnp.where(inside, key, -1), mode="drop")
+        key = corner[:, 4, None, None] + steps * 2**face_bits
+        front = jnp.where(inside, key, -1)
+        if not renderer.antialias:
+            return layers.at[pixel].max(front, mode="drop")
         if renderer.antialias:
             # The second layer: the top candidate covering the pixel's centre and the
             # whole pixel, which shows under a partly covering front triangle (its edge
@@ -906,17 +930,19 @@ def _raster(renderer: Renderer, tri, rows: int, cols: int):
             # most whatever its level, which draws the outline there. Whole candidates
             # rank one level up, above every partial one.
             whole = solid & (steps == 2**_COVERAGE_BITS - 1)
-            plain = steps * 2**face_bits + face[:, None, None]
+            plain = steps * 2**face_bits + jnp.bitwise_and(corner[:, 4, None, None],
+                                                           2**face_bits - 1)
             second = jnp.where(whole, key + 2**(_COVERAGE_BITS + face_bits),
                                jnp.where(inside, plain, -1))
-            beneath = beneath.at[pixel].max(second, mode="drop")
-        return front, beneath
+        # Both layers in one scatter, a pair of keys per pixel.
+        return layers.at[pixel].max(jnp.stack([front, second], axis=-1), mode="drop")
 
-    empty = jnp.full(pixels + 1, -1, jnp.int32)
+    empty = jnp.full((pixels + 1, 2) if renderer.antialias else pixels + 1, -1, jnp.int32)
     chunks = (total + _CHUNK - 1) // _CHUNK
-    front, beneath = jax.lax.fori_loop(0, chunks, chunk, (empty, empty))
+    layers = jax.lax.fori_loop(0, chunks, chunk, empty)
     if not renderer.antialias:
-        return face_bits, [front[:-1]]
+        return face_bits, [layers[:-1]]
+    front, beneath = layers[:, 0], layers[:, 1]
     up = 2**(_COVERAGE_BITS + face_bits)
     back = jnp.where(beneath >= up, beneath - up, -1)
     # Where the front triangle covers the whole pixel, nothing shows beneath it. Where it
@@ -962,18 +988,15 @@ def _shade_where(renderer: Renderer, table, layer, face_bits: int, cols: int, co
     """`colour` with the pixels that `layer` draws (a key per pixel, -1 for none) shaded
     over it. Only those pixels are shaded: they are listed first (a prefix sum), then
     taken `_SHADE_CHUNK` at a time by a loop of a fixed number of steps whose steps past
-    the list are skipped (a fixed count keeps it differentiable in reverse mode). A pixel
-    is listed once, so its colour under is read from `colour` as given."""
+    the list are skipped (a fixed count keeps it differentiable in reverse mode). The
+    loop's length is the shortest of a few (`_shade_steps`) that holds the list, and a
+    layer that draws nothing (the layer beneath, often) skips it all. A pixel is listed
+    once, so its colour under is read from `colour` as given."""
     pixels = layer.shape[0]
     drawn = layer >= 0
-    position = jax.lax.associative_scan(jnp.add, drawn.astype(jnp.int32))
-    count = position[-1]
-    steps = -(-pixels // _SHADE_CHUNK)
-    listed = jnp.full(steps * _SHADE_CHUNK, pixels, jnp.int32).at[
-        jnp.where(drawn, position - 1, steps * _SHADE_CHUNK)].set(
-        jnp.arange(pixels, dtype=jnp.int32), mode="drop")
+    count = jnp.sum(drawn, dtype=jnp.int32)
 
-    def shade(index):
+    def shade(listed, index):
         at = jax.lax.dynamic_slice(listed, (index * _SHADE_CHUNK,), (_SHADE_CHUNK,))
         pixel = jnp.minimum(at, pixels - 1)
         key = jnp.where(at < pixels, layer[pixel], -1)
@@ -982,14 +1005,37 @@ def _shade_where(renderer: Renderer, table, layer, face_bits: int, cols: int, co
         y = (pixel // cols).astype(table.dtype)
         return _shade(renderer, rows_of, key >= 0, x, y, colour[pixel])
 
-    def step(carry, index):
-        skip = lambda i: jnp.zeros((_SHADE_CHUNK, 4), colour.dtype)  # noqa: E731
-        return carry, jax.lax.cond(index * _SHADE_CHUNK < count, shade, skip, index)
+    def loop(steps):
+        def run(colour):
+            if steps == 0:
+                return colour
+            position = jax.lax.associative_scan(jnp.add, drawn.astype(jnp.int32))
+            listed = jnp.full(steps * _SHADE_CHUNK, pixels, jnp.int32).at[
+                jnp.where(drawn, position - 1, steps * _SHADE_CHUNK)].set(
+                jnp.arange(pixels, dtype=jnp.int32), mode="drop")
 
-    # Each step's pixels come out as its own rows, written once at the end: a colour
-    # buffer carried through the loop would be copied at every step.
-    _, shaded = jax.lax.scan(step, None, jnp.arange(steps))
-    return colour.at[listed].set(shaded.reshape(-1, 4), mode="drop")
+            def step(carry, index):
+                skip = lambda i: jnp.zeros((_SHADE_CHUNK, 4), colour.dtype)  # noqa: E731
+                return carry, jax.lax.cond(index * _SHADE_CHUNK < count,
+                                           functools.partial(shade, listed), skip, index)
+
+            # Each step's pixels come out as its own rows, written once at the end: a
+            # colour buffer carried through the loop would be copied at every step.
+            _, shaded = jax.lax.scan(step, None, jnp.arange(steps))
+            return colour.at[listed].set(shaded.reshape(-1, 4), mode="drop")
+        return run
+
+    ladder = _shade_steps(pixels)
+    needed = (count + _SHADE_CHUNK - 1) // _SHADE_CHUNK
+    branch = jnp.searchsorted(jnp.asarray(ladder), needed)
+    return jax.lax.switch(branch, [loop(steps) for steps in ladder], colour)
+
+
+def _shade_steps(pixels: int) -> tuple[int, ...]:
+    """The shading loop's lengths to choose from: none, a sixteenth, a quarter and all
+    of the picture's chunks (each length is compiled once)."""
+    steps = -(-pixels // _SHADE_CHUNK)
+    return tuple(sorted({0, -(-steps // 8), steps}))
 
 
 def _premultiply(rgba):
