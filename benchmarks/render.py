@@ -5,9 +5,10 @@ Three parts, each in the same run, float32 on whatever JAX device is the default
 - render: for each shape mesh (about 6k and 20k vertices) and output size (256, 512 and
   1024 pixels square), the renderer's tile and budget, the compile time of a frame,
   the median time of one jitted frame (antialiased, and without antialiasing), of a
-  batch of B frames through `jax.jit(jax.vmap(renderer))`, and of a Python loop of the
-  jitted single frame over the same B frames (dispatched asynchronously, blocked once
-  at the end), and the loop's time over the batch's. The horse is drawn with the
+  batch of B frames through `jax.jit(jax.vmap(renderer))`, of `Renderer.frames`' way
+  (`jax.lax.map` in one program) and of a Python loop of the jitted single frame over
+  the same B frames (dispatched asynchronously, blocked once at the end), these three
+  timed in turns (`interleaved_median_ms`), and their ratios. The horse is drawn with the
   checkerboard fill, posed by the demo's drag at 0.2 to 1 of its length.
 - peer: one pose (the drag at 0.3 of its length: no flipped triangle, and the lifted
   front leg not yet over the other one, which matplotlib's triangulation refuses) drawn
@@ -209,19 +210,26 @@ def run_render(shape, vertices_list, sizes, repeats: int, quick: bool, rigs: dic
                 "flipped_triangles": flipped,
                 "compile_ms": compile_ms(single, singles[0]),
             }
-            row["single_ms"] = median_ms(single, [(v,) for v in singles], repeats)
             row["no_antialias_compile_ms"] = compile_ms(single_hard, singles[0])
-            row["no_antialias_single_ms"] = median_ms(single_hard, [(v,) for v in singles],
-                                                      repeats)
+            # In turns, over a longer window than one burst of another process's work.
+            times = interleaved_median_ms({"single": (single, [(v,) for v in singles]),
+                                           "hard": (single_hard, [(v,) for v in singles])},
+                                          2 * repeats, budget_s=10.0)
+            row["single_ms"], row["no_antialias_single_ms"] = times["single"], times["hard"]
             row["batch_compile_ms"] = compile_ms(batched, frames)
-            few = max(3, repeats // 4)
-            row["batch_ms"] = median_ms(batched, [(frames,)], few)
+            row["map_compile_ms"] = compile_ms(mapped, frames)
+            # The three ways over the same frames, timed in turns: their ratios hold
+            # however busy the machine is.
+            times = interleaved_median_ms({"batch": (batched, [(frames,)]),
+                                           "loop": (loop, [(singles,)]),
+                                           "map": (mapped, [(frames,)])},
+                                          max(3, repeats // 2), budget_s=10.0, block=3)
+            row["batch_ms"] = times["batch"]
             row["batch_frame_ms"] = row["batch_ms"] / count
-            row["loop_ms"] = median_ms(loop, [(singles,)], few)
+            row["loop_ms"] = times["loop"]
             row["loop_frame_ms"] = row["loop_ms"] / count
             row["batch_over_loop_throughput"] = row["loop_ms"] / row["batch_ms"]
-            row["map_compile_ms"] = compile_ms(mapped, frames)
-            row["map_ms"] = median_ms(mapped, [(frames,)], few)
+            row["map_ms"] = times["map"]
             row["map_frame_ms"] = row["map_ms"] / count
             row["map_over_loop_throughput"] = row["loop_ms"] / row["map_ms"]
             row["vmap_over_map_throughput"] = row["map_ms"] / row["batch_ms"]
