@@ -240,6 +240,32 @@ def test_vmap_draws_frames_in_turn_as_the_plain_vmap_would_with_gradients(render
 
 
 @pytest.mark.float64
+@pytest.mark.parametrize("share", [0.0, 1e-4, 0.1, 0.126, 0.9])
+def test_shading_only_the_drawn_pixels_equals_shading_every_pixel(renderer, rig, share):
+    # The shading lists the drawn pixels and takes a loop of one of a few lengths: none
+    # drawn, under an eighth of the picture and more take different branches, which
+    # must all give what shading every pixel and keeping the drawn ones gives.
+    from mvcjax._render import _face_table, _key_layout, _shade, _shade_where, _to_pixels
+
+    rows, cols = renderer.shape
+    faces = renderer.faces
+    tri = _to_pixels(rig.shape_mesh.vertices, renderer.window, rows, cols)[faces]
+    table = _face_table(tri, renderer.texture_points[faces], renderer.boundary)
+    face_bits, _ = _key_layout(faces.shape[0])
+    rng = np.random.default_rng(0)
+    layer = np.where(rng.random(rows * cols) < share,
+                     rng.integers(0, faces.shape[0], rows * cols), -1).astype(np.int32)
+    under = jnp.asarray(rng.random((rows * cols, 4)), table.dtype)
+    listed = jax.jit(lambda keys, c: _shade_where(renderer, table, keys, face_bits, cols, c))(
+        jnp.asarray(layer), under)
+    pixel = np.arange(rows * cols)
+    every = _shade(renderer, table[np.maximum(layer, 0)].T, jnp.asarray(layer >= 0),
+                   jnp.asarray(pixel % cols, table.dtype), jnp.asarray(pixel // cols, table.dtype),
+                   under)
+    expected = np.where((layer >= 0)[:, None], np.asarray(every), np.asarray(under))
+    np.testing.assert_allclose(np.asarray(listed), expected, atol=ROUNDING)
+
+
 def test_gradients_match_finite_differences_inside_and_across_the_edge(rig64, picture):
     rig = rig64
     r = mvcjax.Renderer.build(rig, picture)
