@@ -1032,10 +1032,10 @@ def _shade_where(renderer: Renderer, table, layer, face_bits: int, cols: int, co
 
 
 def _shade_steps(pixels: int) -> tuple[int, ...]:
-    """The shading loop's lengths to choose from: none, an eighth and all of the
+    """The shading loop's lengths to choose from: none, an eighth, a half and all of the
     picture's chunks (each length is compiled once, in a branch of its own)."""
     steps = -(-pixels // _SHADE_CHUNK)
-    return tuple(sorted({0, -(-steps // 8), steps}))
+    return tuple(sorted({0, -(-steps // 8), -(-steps // 2), steps}))
 
 
 def _premultiply(rgba):

@@ -239,15 +239,28 @@ def test_vmap_draws_frames_in_turn_as_the_plain_vmap_would_with_gradients(render
     np.testing.assert_allclose(premultiplied(pair), premultiplied(fast[:2]), atol=ROUNDING)
 
 
-@pytest.mark.float64
-@pytest.mark.parametrize("share", [0.0, 1e-4, 0.1, 0.126, 0.9])
-def test_shading_only_the_drawn_pixels_equals_shading_every_pixel(renderer, rig, share):
-    # The shading lists the drawn pixels and takes a loop of one of a few lengths: none
-    # drawn, under an eighth of the picture and more take different branches, which
-    # must all give what shading every pixel and keeping the drawn ones gives.
-    from mvcjax._render import _face_table, _key_layout, _shade, _shade_where, _to_pixels
+@pytest.fixture(scope="module")
+def renderer256(rig, picture):
+    return mvcjax.Renderer.build(rig, picture, size=(256, 256))
 
+
+@pytest.mark.parametrize("share", [0.0, 1e-4, 0.1, 0.2, 0.6, 0.95])
+def test_shading_only_the_drawn_pixels_equals_shading_every_pixel(renderer256, rig, share):
+    # The shading lists the drawn pixels and takes a loop of one of a few lengths (here
+    # none, 1, 4 or 8 chunks: these shares take each), which must all give what
+    # shading every pixel and keeping the drawn ones gives.
+    from mvcjax._render import (
+        _face_table,
+        _key_layout,
+        _shade,
+        _shade_steps,
+        _shade_where,
+        _to_pixels,
+    )
+
+    renderer = renderer256
     rows, cols = renderer.shape
+    assert _shade_steps(rows * cols) == (0, 1, 4, 8)
     faces = renderer.faces
     tri = _to_pixels(rig.shape_mesh.vertices, renderer.window, rows, cols)[faces]
     table = _face_table(tri, renderer.texture_points[faces], renderer.boundary)
@@ -266,6 +279,7 @@ def test_shading_only_the_drawn_pixels_equals_shading_every_pixel(renderer, rig,
     np.testing.assert_allclose(np.asarray(listed), expected, atol=ROUNDING)
 
 
+@pytest.mark.float64
 def test_gradients_match_finite_differences_inside_and_across_the_edge(rig64, picture):
     rig = rig64
     r = mvcjax.Renderer.build(rig, picture)
