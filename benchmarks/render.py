@@ -31,10 +31,10 @@ Three parts, each in the same run, float32 on whatever JAX device is the default
 - export: an animation of the horse dragged there and back, 256 x 256, written by
   `mvcjax.export.write_animation` as GIF, animated PNG, WebP and MP4: seconds and bytes.
 
-With `--baseline REF`, the 512 x 512 frame at 6k vertices is also timed in turns
-(`interleaved_median_ms`) against the renderer's drawing as it was at git commit REF,
-on the same renderer and poses: a before-and-after ratio measured in one run, which
-holds however busy the machine is.
+With `--baseline REF`, the 512 x 512 frame at 6k vertices and each layered character's
+picture are also timed in turns (`interleaved_median_ms`) against the renderer's
+drawing as it was at git commit REF, on the same renderer and poses: a
+before-and-after ratio measured in one run, which holds however busy the machine is.
 
 Times are medians over many calls after one compiling call (compile time reported
 apart), every call blocked until ready; each ratio is of two times measured in this
@@ -165,6 +165,13 @@ def _against_baseline(renderer, singles, ref: str, repeats: int) -> dict:
             "baseline_max_pixel_difference": difference}
 
 
+def _print_against(row: dict, baseline: str) -> None:
+    print(f"  against {baseline}, timed in turns: {row['interleaved_single_ms']:.2f} ms now, "
+          f"{row['baseline_single_ms']:.2f} ms before, {row['speedup_over_baseline']:.2f}x "
+          f"(pictures differ by at most {row['baseline_max_pixel_difference']:.1e})",
+          flush=True)
+
+
 def run_render(shape, vertices_list, sizes, repeats: int, quick: bool, rigs: dict,
                baseline: str | None = None) -> list[dict]:
     import jax
@@ -239,11 +246,7 @@ def run_render(shape, vertices_list, sizes, repeats: int, quick: bool, rigs: dic
                 row["batch_frame_target_met"] = row["batch_frame_ms"] <= TARGET_FRAME_MS
                 if baseline:
                     row.update(_against_baseline(renderer, singles, baseline, 4 * repeats))
-                    print(f"  against {baseline}, timed in turns: "
-                          f"{row['interleaved_single_ms']:.2f} ms now, "
-                          f"{row['baseline_single_ms']:.2f} ms before, "
-                          f"{row['speedup_over_baseline']:.2f}x (pictures differ by at most "
-                          f"{row['baseline_max_pixel_difference']:.1e})", flush=True)
+                    _print_against(row, baseline)
             rows.append(row)
             print(_render_line(row), flush=True)
     return rows
@@ -634,7 +637,7 @@ def _limbed_layers(parts: int):
     return layers, handles, np.asarray(pose)
 
 
-def run_layers(part_counts, repeats: int) -> list[dict]:
+def run_layers(part_counts, repeats: int, baseline: str | None = None) -> list[dict]:
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -692,6 +695,11 @@ def run_layers(part_counts, repeats: int) -> list[dict]:
         print(f"{parts:>5} {row['shape_vertices']:>6} {build_s:>7.2f}s "
               f"{row['deform_ms']:>7.2f}ms {row['silhouette_deform_ms']:>7.2f}ms "
               f"{row['render_ms']:>7.2f}ms {row['silhouette_render_ms']:>7.2f}ms", flush=True)
+        if baseline:
+            # A character is drawn as one mesh of all its parts (`with_order`).
+            row.update(_against_baseline(renderer.with_order(None),
+                                         [renderer._joined(vertices)], baseline, 4 * repeats))
+            _print_against(row, baseline)
     return rows
 
 
@@ -778,7 +786,8 @@ def main(argv=None) -> int:
               f"{'parts':>5} {'V_S':>6} {'build':>8} {'deform':>9} {'(one)':>9} "
               f"{'render':>9} {'(one)':>9}", flush=True)
         t0 = time.perf_counter()
-        rows += run_layers(QUICK_LAYER_PARTS if args.quick else LAYER_PARTS, repeats)
+        rows += run_layers(QUICK_LAYER_PARTS if args.quick else LAYER_PARTS, repeats,
+                           args.baseline)
         seconds["layers_part_s"] = time.perf_counter() - t0
     if "export" in args.parts:
         count = QUICK_EXPORT_FRAMES if args.quick else EXPORT_FRAMES

@@ -349,8 +349,16 @@ def render_layers_table(data: dict, source: str) -> str:
             "pose", "pose, one silhouette", "ratio", "picture compile", "picture",
             "picture, one silhouette", "ratio"]
     meta = data.get("meta", {})
-    return "\n".join([_measured_on(data, source, f"medians of {meta.get('repeats')} calls"),
-                      "", *_table(head, rows)])
+    lines = [_measured_on(data, source, f"medians of {meta.get('repeats')} calls"), "",
+             *_table(head, rows)]
+    against = [r for r in layered if "baseline_ref" in r]
+    if against:
+        lines += ["", f"Against the renderer at commit `{against[0]['baseline_ref']}`, each "
+                  "picture timed in turns in the same run: " + "; ".join(
+                      f"{r['parts']} parts {_ms(r['interleaved_single_ms'])} now, "
+                      f"{_ms(r['baseline_single_ms'])} before "
+                      f"({_times(r['speedup_over_baseline'])})" for r in against) + "."]
+    return "\n".join(lines)
 
 
 def render_export_table(data: dict, source: str) -> str:
