@@ -294,7 +294,7 @@ def render_table(data: dict, source: str) -> str:
              *_table(head, rows)]
     if targets:
         lines += ["", "Targets: " + "; ".join(targets) + "."]
-    against = [r for r in data["rows"] if "baseline_ref" in r]
+    against = [r for r in data["rows"] if r.get("kind") == "render" and "baseline_ref" in r]
     for r in against:
         size = r["size"].replace("x", " x ")
         lines += ["", f"Against the renderer at commit `{r['baseline_ref']}`, the {size} "
