@@ -45,12 +45,14 @@ whether they were met, never asserted.
     python benchmarks/render.py                       # 6k and 20k; 256, 512, 1024; 200 frames
     python benchmarks/render.py --quick --json FILE   # 6k; 256, 512; peers at 256; 50 frames;
                                                       # 3 and 8 parts
-    python benchmarks/render.py --baseline REF        # and the 512, 6k frame against REF
+    python benchmarks/render.py --baseline REF        # and the 512, 6k frame and the
+                                                      # layered pictures against REF's
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import sys
 import tempfile
@@ -126,6 +128,7 @@ def _flipped(rig, poses) -> int:
 # ---- render ----------------------------------------------------------------------------
 
 
+@functools.lru_cache
 def _draw_at(ref: str):
     """The renderer's drawing function (`_draw`) as it was at git commit `ref`, loaded
     beside the current one, for a before-and-after timing on the same renderer."""
@@ -747,8 +750,8 @@ def main(argv=None) -> int:
     parser.add_argument("--peer-sizes", type=int, nargs="*",
                         help="output sizes of the peer comparison")
     parser.add_argument("--baseline", metavar="REF",
-                        help="also time the target frame against the renderer at this git "
-                             "commit, in turns")
+                        help="also time the target frame and the layered pictures against "
+                             "the renderer at this git commit, in turns")
     parser.add_argument("--parts", nargs="*", choices=["render", "peer", "layers", "export"],
                         default=["render", "peer", "layers", "export"], help="what to run")
     args = parser.parse_args(argv)

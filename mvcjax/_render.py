@@ -1005,10 +1005,12 @@ def _shade_where(renderer: Renderer, table, layer, face_bits: int, cols: int, co
         y = (pixel // cols).astype(table.dtype)
         return _shade(renderer, rows_of, key >= 0, x, y, colour[pixel])
 
-    def loop(steps):
-        def run(colour):
-            if steps == 0:
-                return colour
+    def shaded_by(steps):
+        """`colour` with the listed pixels shaded by a loop of `steps` chunks."""
+        if steps == 0:
+            return lambda: colour
+
+        def run():
             position = jax.lax.associative_scan(jnp.add, drawn.astype(jnp.int32))
             listed = jnp.full(steps * _SHADE_CHUNK, pixels, jnp.int32).at[
                 jnp.where(drawn, position - 1, steps * _SHADE_CHUNK)].set(
@@ -1028,7 +1030,7 @@ def _shade_where(renderer: Renderer, table, layer, face_bits: int, cols: int, co
     ladder = _shade_steps(pixels)
     needed = (count + _SHADE_CHUNK - 1) // _SHADE_CHUNK
     branch = jnp.searchsorted(jnp.asarray(ladder), needed)
-    return jax.lax.switch(branch, [loop(steps) for steps in ladder], colour)
+    return jax.lax.switch(branch, [shaded_by(steps) for steps in ladder])
 
 
 def _shade_steps(pixels: int) -> tuple[int, ...]:
