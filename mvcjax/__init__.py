@@ -26,6 +26,7 @@ from ._fit import (
 from ._handles import Bone as Bone
 from ._image import cut_out as cut_out, image_mask as image_mask, load_image as load_image
 from ._interact import Posing as Posing, interact as interact
+from ._ladder import SizeLadder as SizeLadder
 from ._layers import Layer as Layer, load_layers as load_layers
 from ._metrics import (
     difference as difference,

@@ -15,9 +15,11 @@ from jaxtyping import Array, Float
 
 from ._character import Character
 from ._checks import as_array, as_devices, check_solver, kind_of, whole_number
+from ._ladder import padded_twin
 from ._rig import Rig, solve_in_frame
 from ._skinning import skin_frames_into
 from ._solvers import DEFAULT_SOLVER, AbstractSolver
+from ._xla import to_device
 
 
 def _pad_frames(targets, multiple: int):
@@ -187,6 +189,12 @@ def deform_frames(
                              "arrays: leave out out= and devices=.")
         return _deform_character(rig, targets, solver, min(chunk, frames))
     devices = [jax.local_devices()[0]] if devices is None else devices
+    twin = padded_twin(rig)
+    if out is None and twin is not None and not isinstance(targets, jax.core.Tracer):
+        # A laddered rig poses as its twin, whose program rigs on its rungs share; its
+        # own rows are cut on the host (an eager slice compiles a program per size).
+        posed = deform_frames(twin, targets, solver, chunk=chunk, devices=devices)
+        return to_device(np.asarray(posed)[:, :rig.shape_mesh.vertices.shape[0]], posed.dtype)
     if out is not None:
         if len(devices) != 1:
             raise ValueError("out works on one device; leave it out to shard frames over "

@@ -515,6 +515,10 @@ class AbstractFactorMethod(eqx.Module):
     def __call__(self, energy: Energy) -> AbstractFactor:
         """The factor for the energy's weights."""
 
+    def is_dense(self, vertices: int) -> bool:
+        """Whether the factor of a control mesh of this many vertices is a `DenseFactor`."""
+        return False
+
 
 class DenseG(AbstractFactorMethod):
     """The paper's dense `G` (eq. 8): a step is one small matrix product. Pure JAX, so
@@ -523,6 +527,9 @@ class DenseG(AbstractFactorMethod):
 
     def __call__(self, energy):
         return dense_factor(energy)
+
+    def is_dense(self, vertices):
+        return True
 
 
 class SparseLU(AbstractFactorMethod):
@@ -544,8 +551,11 @@ class FactorBySize(AbstractFactorMethod):
 
     max_dense: int = eqx.field(default=1000, static=True)
 
+    def is_dense(self, vertices):
+        return vertices <= self.max_dense
+
     def __call__(self, energy):
-        method = DenseG() if energy.num_vertices <= self.max_dense else SparseLU()
+        method = DenseG() if self.is_dense(energy.num_vertices) else SparseLU()
         return method(energy)
 
 

@@ -25,6 +25,7 @@ from ._energy import Energy, Term, Weights, check_weights, total_energy
 from ._factor import AbstractFactor, FactorBySize, as_factor_method
 from ._folds import inverted_count
 from ._handles import Handles, check_handles, make_handles, pin
+from ._ladder import SizeLadder, cut_factor, padded_twin, twin_parts
 from ._local_frame import Frame, bounding_frame, check_representable, frame_array, points_to_local
 from ._module import JittableModule
 from ._programs import note_size
@@ -240,6 +241,7 @@ class Rig(JittableModule):
         factor: Any = FactorBySize(),
         dtype=None,
         max_triangles: int = 400_000,
+        ladder: Any = None,
     ) -> Rig:
         """Mesh the shape, build the control mesh, and precompute everything.
 
@@ -276,6 +278,16 @@ class Rig(JittableModule):
             max_triangles: refuse, before meshing, a shape mesh estimated to have more
                 triangles than this (a small spacing or a thin shape can ask for
                 millions); raise it if you mean it.
+            ladder: `mvcjax.SizeLadder()` to share compiled programs between rigs of
+                similar sizes (for scripts that rig many shapes): the rig keeps, beside
+                itself, a twin padded to the ladder's sizes, and its eager `deform` and
+                `solve` run the twin's program, compiled once for all the rigs on the
+                same rungs. What the rig holds and returns keeps its own sizes, equal to
+                a rig built without the ladder to float rounding. The twin is not a
+                field: transformations, and rigs made from this one (`with_weights`,
+                `with_pin`, ...), do without it. Default None: no twin.
+                Applies to a dense factor only (a control mesh of up to
+                `FactorBySize.max_dense` vertices); a larger rig is built without.
         """
         if not isinstance(shape, Shape):
             raise TypeError(
@@ -289,6 +301,9 @@ class Rig(JittableModule):
         max_triangles = whole_number(max_triangles, "max_triangles")
         control = as_control(control)
         factor = as_factor_method(factor)
+        if ladder is not None and not isinstance(ladder, SizeLadder):
+            raise TypeError(f"ladder must be an mvcjax.SizeLadder() or None, got "
+                            f"{ladder!r}.")
 
         centre, scale = bounding_frame(shape.outer)
         check_representable(centre, scale, dtype)
@@ -324,12 +339,12 @@ class Rig(JittableModule):
         return cls._assemble(
             (shape_vertices, shape_faces, shape_pinned[row_pin]),
             (parts.vertices, parts.faces, parts.loops, parts.inner, parts.pinned[row_pin]),
-            skin, handle_rows, weights, factor, dtype, frame,
+            skin, handle_rows, weights, factor, dtype, frame, ladder,
         )
 
     @classmethod
     def _assemble(cls, shape_mesh, control_mesh, skinning, handles, weights, factor, dtype,
-                  frame):
+                  frame, ladder=None):
         """The rig from its parts, all in the rig's frame (`frame = (centre, scale)` maps
         them back to the user's coordinates)."""
         shape_vertices, shape_faces, shape_pinned = shape_mesh
@@ -339,7 +354,7 @@ class Rig(JittableModule):
             control_vertices, control_faces, loops, inner, control_pinned, weights, dtype,
         )
         world = lambda v: _array(v * scale + centre, dtype)  # noqa: E731
-        rig = cls(
+        parts = dict(
             shape_mesh=ShapeMesh(world(shape_vertices), _ints(shape_faces), _ints(shape_pinned)),
             control_mesh=ControlMesh(
                 world(control_vertices), _ints(control_faces),
@@ -348,11 +363,19 @@ class Rig(JittableModule):
             handles=handles,
             skinning=Skinning.from_rows(*skinning, dtype),
             energy=energy,
-            factor=factor(energy),
             frame=frame_array(centre, scale, dtype),
             turns=_array(turn_weights(control_vertices, control_faces, control_pinned), dtype),
         )
-        note_size(rig)  # a bounded number of sizes' programs kept (`_programs`)
+        if ladder is None or not factor.is_dense(len(control_vertices)):
+            rig = cls(**parts, factor=factor(energy))
+            note_size(rig)  # a bounded number of sizes' programs kept (`_programs`)
+            return rig
+        # The factor is cut from the twin's: compiled once per rung, not per rig.
+        twin_factor, finish = twin_parts(parts, ladder)
+        rig = cls(**parts, factor=cut_factor(twin_factor, finish.energy, energy))
+        twin = finish(rig)
+        note_size(twin)
+        object.__setattr__(rig, "_twin", twin)  # not a field: no transformation keeps it
         return rig
 
     @classmethod
@@ -673,33 +696,56 @@ def solve_in_frame(rig: Rig, targets, solver: AbstractSolver, init):
     return vertices, info.rescaled(rig.frame.scale**2)
 
 
-def _compiled_when_eager(fn):
+def _compiled_when_eager(rows):
     """`fn(rig, targets, solver, init)`, compiled with the rig as an argument when called
     outside any transformation, inline inside one (the caller's `jit` compiles it).
+    `rows(rig)` is how many rows of `fn`'s first output are the rig's own.
 
     Eager calls would otherwise run op by op, compiling every loop afresh, and keep
     those programs, each holding memory maps, until a long session runs out. As an
     argument, never closed over, a new rig of the same sizes reuses the program. Inside
     a transformation a nested `jit` is no faster, and jaxopt's implicit gradients leak a
     tracer through one.
+
+    A rig built with a `SizeLadder` runs its padded twin's program instead (shared by the
+    rigs on the same rungs), and gets its own rows back, cut on the host: an eager slice
+    would compile a program for every size.
     """
-    compiled = eqx.filter_jit(fn)
+    def wrap(fn):
+        compiled = eqx.filter_jit(fn)
 
-    def call(rig, targets, solver, init):
-        traced = any(isinstance(leaf, jax.core.Tracer)
-                     for leaf in jax.tree.leaves((rig, targets, init)))
-        return (fn if traced else compiled)(rig, targets, solver, init)
+        def call(rig, targets, solver, init):
+            traced = any(isinstance(leaf, jax.core.Tracer)
+                         for leaf in jax.tree.leaves((rig, targets, init)))
+            if traced:
+                return fn(rig, targets, solver, init)
+            twin = padded_twin(rig)
+            if twin is None or (not isinstance(init, str)
+                                and np.shape(init) != rig.energy.rest.shape):
+                return compiled(rig, targets, solver, init)
+            if not isinstance(init, str):  # padded vertices start on vertex 0
+                init = np.asarray(init)
+                init = _rows_like(init, twin.energy.rest.shape[0])
+            out, info = compiled(twin, targets, solver, init)
+            return to_device(np.asarray(out)[:rows(rig)], out.dtype), info
 
-    return call
+        return call
+
+    return wrap
 
 
-@_compiled_when_eager
+def _rows_like(a: np.ndarray, count: int) -> np.ndarray:
+    """`a` with copies of its first row appended up to `count` rows."""
+    return np.concatenate([a, np.broadcast_to(a[:1], (count - len(a), *a.shape[1:]))])
+
+
+@_compiled_when_eager(lambda rig: rig.energy.rest.shape[0])
 def _solve(rig: Rig, targets, solver: AbstractSolver, init):
     vertices, info = solve_in_frame(rig, targets, solver, init)
     return rig.frame.to_world(vertices), info
 
 
-@_compiled_when_eager
+@_compiled_when_eager(lambda rig: rig.shape_mesh.vertices.shape[0])
 def _deform(rig: Rig, targets, solver: AbstractSolver, init):
     vertices, info = solve_in_frame(rig, targets, solver, init)
     return rig.skinning(vertices, rig.frame), info

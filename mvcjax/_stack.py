@@ -143,9 +143,11 @@ def _padded_rows(skinning: Skinning, count: int, width: int):
             _rows(_columns(weight, width), count, _columns(weight, width)[0]))
 
 
-def _skinnings(rigs, sizes: dict[str, int], like: Skinning | None) -> list[Skinning]:
+def _skinnings(rigs, sizes: dict[str, int], like: Skinning | None,
+               shapes=None) -> list[Skinning]:
     """The rigs' skinnings packed alike: one tile size, tiles and blocks padded with
-    zero weights to the largest count and width (or to those of `like`, a stack's)."""
+    zero weights to the largest count and width (or to those of `like`, a stack's; or
+    to `shapes(name, largest, tile)` of each table, given that function)."""
     rows = [_padded_rows(r.skinning, sizes["shape_vertices"], sizes["skin_width"])
             for r in rigs]
     tile = (max(tile_rows(index) for index, _ in rows) if like is None
@@ -157,15 +159,16 @@ def _skinnings(rigs, sizes: dict[str, int], like: Skinning | None) -> list[Skinn
     if unblocked or any(b is None for b in blocks):  # rows too scattered: none blocked
         blocks = [(np.zeros((0, 1), np.int64), np.zeros((0, 1, BLOCK_ROWS)))] * len(rows)
 
-    def most(arrays, given) -> tuple[int, ...]:
+    def most(arrays, name) -> tuple[int, ...]:
         if like is not None:
-            return tuple(int(n) for n in given.shape[1:])
-        return tuple(int(n) for n in np.max([a.shape for a in arrays], axis=0))
+            return tuple(int(n) for n in getattr(like, name).shape[1:])
+        largest = tuple(int(n) for n in np.max([a.shape for a in arrays], axis=0))
+        return largest if shapes is None else shapes(name, largest, tile)
 
-    tile_index = most([t[0] for t in tiles], getattr(like, "tile_indices", None))
-    tile_weight = most([t[1] for t in tiles], getattr(like, "tile_weights", None))
-    block_index = most([b[0] for b in blocks], getattr(like, "block_indices", None))
-    block_weight = most([b[1] for b in blocks], getattr(like, "block_weights", None))
+    tile_index = most([t[0] for t in tiles], "tile_indices")
+    tile_weight = most([t[1] for t in tiles], "tile_weights")
+    block_index = most([b[0] for b in blocks], "block_indices")
+    block_weight = most([b[1] for b in blocks], "block_weights")
     out = []
     for rig, (ti, tw, slot), (bi, bw) in zip(rigs, tiles, blocks):
         dtype = rig.energy.rest.dtype
@@ -177,26 +180,27 @@ def _skinnings(rigs, sizes: dict[str, int], like: Skinning | None) -> list[Skinn
     return out
 
 
-def _factors(energies, width: int | None) -> list[DenseFactor]:
-    """Dense factors of the padded energies, their spread tables padded alike (entry 0
-    with coefficient zero adds nothing), to the widest or to `width`.
+def _factors(energies, width: int | None, rung=None) -> list[DenseFactor]:
+    """Dense factors of the padded energies, their spread tables padded alike (with the
+    entry past the last, whose coefficient is zero) to the widest (rounded up by
+    `rung`, if given) or to `width`: one size, so one compiled program for them all.
 
     The padded rows, all on one vertex, are left out of the tables: they are zero
     vectors, and listed they would make the table as wide as their count."""
-    factors = []
+    spreads = []
     for energy in energies:
         rows, coef = (np.asarray(a) for a in _local_stencil(energy))
         zero = (rows == rows[:, :1]).all(axis=1)
-        spread = transpose_table(rows, np.where(zero[:, None], 0.0, coef),
-                                 energy.num_vertices)
-        factors.append(dense_factor(energy, spread))
-    width = max(f.spread.shape[1] for f in factors) if width is None else width
-    if any(f.spread.shape[1] > width for f in factors):
+        spreads.append((transpose_table(rows, np.where(zero[:, None], 0.0, coef),
+                                        energy.num_vertices), rows.size))
+    if width is None:
+        width = max(s.shape[1] for s, _ in spreads)
+        width = width if rung is None else rung(width)
+    if any(s.shape[1] > width for s, _ in spreads):
         raise _TooLarge(f"a control vertex in more rows than {width}")
-    return [eqx.tree_at(lambda f: (f.spread, f.spread_coef), f,
-                        (to_device(_columns(f.spread, width), np.int32),
-                         to_device(_columns(f.spread_coef, width), f.spread_coef.dtype)))
-            for f in factors]
+    # Padded with the entry past the last, as `transpose_table` pads.
+    return [dense_factor(e, to_device(_columns(s, width, past), np.int32))
+            for e, (s, past) in zip(energies, spreads)]
 
 
 def _pad_rig(rig, sizes: dict[str, int], skinning: Skinning, factor: DenseFactor, energy):

@@ -1,0 +1,154 @@
+"""A ladder of sizes: rigs of similar sizes padded alike, so that they share compiled
+programs.
+
+JAX compiles a program for every set of array shapes. A script that rigs many shapes
+(every glyph of a font, a folder of sprites) builds rigs whose sizes all differ by a
+few vertices, and each would compile its factor and its solve anew: most of a new
+rig's build and first frame. `Rig.build(..., ladder=SizeLadder())` rounds every size
+of the rig up to the next rung of a geometric ladder and keeps, beside the rig, a
+padded twin of those sizes (padded as `Rig.stack` pads, which changes no result). The
+rig itself keeps its own sizes: what a user reads from it and gets from it is as
+without the ladder. Its eager calls (`deform`, `solve`) run the twin's program, shared
+by every rig on the same rungs, and return the rig's own rows; its factor is cut from
+the twin's, so the build compiles nothing new either.
+"""
+
+from __future__ import annotations
+
+import math
+import types
+
+import equinox as eqx
+import numpy as np
+
+from ._factor import DenseFactor
+from ._skinning import block_width_limit
+from ._stencils import transpose_table
+from ._xla import to_device
+
+
+class SizeLadder(eqx.Module):
+    """Sizes rounded up to the next rung of `ceil(step ** k)`: 1, 2, 3, 4, 6, 8, 12, 16,
+    23, 32, 46, 64, 91, 128, ... for the default step `sqrt(2)`.
+
+    Only the shape mesh's and the control mesh's vertex counts are rounded on their own
+    (and the pinned rows, which the handles decide); every other size is made from
+    them, as large as a mesh of that many vertices can need (triangles, edges, the
+    Laplacian's rows, the skinning's tiles), so that rigs differ in two or three
+    counts, not a dozen. The twin then does more arithmetic than its rig: up to
+    `step` times as many vertices, and up to half again as many energy rows.
+
+    Attributes:
+        step: the ratio between rungs, above 1 (a larger step pads more and shares
+            more programs).
+    """
+
+    step: float = eqx.field(default=2 ** 0.5, static=True)
+
+    def __check_init__(self):
+        if not (isinstance(self.step, (int, float)) and 1.0 < self.step <= 4.0):
+            raise ValueError(f"SizeLadder(step={self.step!r}): the step is the ratio "
+                             "between rungs, a number above 1 and at most 4 (sqrt(2), the "
+                             "default, pads a size by at most its half again).")
+
+    def rung(self, n: int) -> int:
+        """The smallest rung at least `n`."""
+        if n <= 1:
+            return max(int(n), 0)
+        k = max(math.floor(math.log(n) / math.log(self.step)) - 1, 0)
+        while math.ceil(self.step ** k - 1e-9) < n:
+            k += 1
+        return math.ceil(self.step ** k - 1e-9)
+
+    def sizes(self, sizes: dict[str, int]) -> dict[str, int]:
+        """A rig's sizes (`_stack.common_sizes`), padded: see the class."""
+        n, c = self.rung(sizes["shape_vertices"]), self.rung(sizes["control_vertices"])
+        out = {k: max(self.rung(v), _FLOORS.get(k, 0)) for k, v in sizes.items()}
+        # A triangulation of v vertices has under 2v triangles and 3v edges, and its
+        # polygon (the Laplacian's rows) under v vertices.
+        out.update(shape_vertices=n, control_vertices=c, mvc=c, shape_faces=2 * n,
+                   control_faces=2 * c, outer=c, laplacian=c, edges=3 * c)
+        return {k: max(v, sizes[k]) for k, v in out.items()}
+
+    def table_shape(self, name: str, largest: tuple[int, ...], tile: int,
+                    sizes: dict[str, int]) -> tuple[int, ...]:
+        """The padded shape of a skinning table (`Skinning`'s fields) packed `largest`
+        in tiles of `tile` rows, for a twin of `sizes`."""
+        width, n = sizes["skin_width"], sizes["shape_vertices"]
+        if name in ("tile_indices", "tile_weights"):
+            # The rows of one control triangle share their list, and so their tiles:
+            # at most one partly filled tile per triangle.
+            tiles = -(-n // tile) + sizes["control_faces"]
+            return (width, max(tiles, largest[1]), *largest[2:])
+        # As many blocks as the padded rows make, each as wide as a block may be.
+        return (largest[0], max(block_width_limit(width), largest[1]), *largest[2:])
+
+
+# Widths that vary by a few entries between rigs, padded to where most rigs fall.
+_FLOORS = {"ring": 12, "skin_width": 23, "pin_width": 1, "spread": 23}
+
+
+def twin_parts(parts: dict, ladder: SizeLadder):
+    """For a rig's parts (its fields but the factor), the dense factor of its padded
+    twin, and `finish(rig)`, which pads the rig built from them into the twin.
+
+    `finish.energy` is the twin's energy; `finish.sizes` its sizes."""
+    from ._stack import _factors, _pad_rig, _padded_energy, _skinnings, common_sizes
+
+    sizes = ladder.sizes(common_sizes([types.SimpleNamespace(**parts)]))
+    energy = _padded_energy(parts["energy"], sizes)
+    (factor,) = _factors([energy], None,
+                         lambda width: max(ladder.rung(width), _FLOORS["spread"]))
+
+    def finish(rig):
+        def shapes(name, largest, tile):
+            return ladder.table_shape(name, largest, tile, sizes)
+
+        (skinning,) = _skinnings([rig], sizes, None, shapes)
+        return _pad_rig(rig, sizes, skinning, factor, energy)
+
+    finish.energy, finish.sizes = energy, sizes
+    return factor, finish
+
+
+def padded_twin(rig):
+    """The twin `Rig.build(..., ladder=...)` kept beside `rig`, or None."""
+    return vars(rig).get("_twin")
+
+
+def cut_factor(padded: DenseFactor, twin_energy, energy) -> DenseFactor:
+    """The dense factor of `energy` (a rig's own) cut from `padded`, that of its padded
+    twin's energy `twin_energy`.
+
+    The twin's padded vertices are held each by one row `V_p - V_0` of the linear term,
+    and its padded rows are zero: so the real block of the twin's `N^{-1}` is the rig's
+    own `N^{-1}` (the Schur complement of the padded block gives back `N`), the real
+    rows and columns of its `G` are the rig's `G`, and its `N` differs from the rig's only
+    by the holders' weight on vertex 0.
+    """
+    c, lap, edges = (energy.rest.shape[0], energy.laplacian_index.shape[0],
+                     energy.edges.shape[0])
+    # The local rows: the Laplacian's (padded to the twin's count), then the edges'.
+    real = np.r_[0:lap, twin_energy.laplacian_index.shape[0] + np.arange(edges)]
+    host = {k: np.asarray(getattr(padded, k)) for k in
+            ("shape", "handle", "normal", "normal_inverse", "rows", "coef", "length")}
+    weights = energy.weights.normalised()
+    normal = host["normal"][:c, :c].copy()
+    normal[0, 0] -= (twin_energy.rest.shape[0] - c) * float(weights.mvc)
+    rows, coef = host["rows"][real], host["coef"][real]
+    row_weight = np.r_[np.full(lap, float(weights.laplacian)),
+                       np.full(edges, float(weights.length))]
+    spread = transpose_table(rows, coef, c)
+    entries = np.append((coef * row_weight[:, None]).reshape(-1), 0.0)
+    dtype = energy.rest.dtype
+    real_array = lambda a: to_device(a, dtype)  # noqa: E731
+    return DenseFactor(
+        shape=real_array(host["shape"][real][:, :c]),
+        handle=real_array(host["handle"][:c, :energy.handles.shape[0]]),
+        normal=real_array(normal),
+        normal_inverse=real_array(host["normal_inverse"][:c, :c]),
+        spread=to_device(spread, np.int32), spread_coef=real_array(entries[spread]),
+        rows=to_device(rows, np.int32), coef=real_array(coef),
+        length=real_array(host["length"][real]), rest=real_array(np.asarray(energy.rest).T),
+        handle_rows=energy.handles, handle_coef=energy.handle_coef,
+    )

@@ -1,0 +1,164 @@
+"""Rigs built with a `SizeLadder`: padded twins that share compiled programs between
+rigs of similar sizes, invisible in what the rig holds and returns."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, strategies as st
+
+import mvcjax
+from mvcjax import _programs
+from mvcjax._factor import dense_factor
+from mvcjax._ladder import padded_twin
+
+
+def star(points, outer, inner, centre=(0.0, 0.0)):
+    t = np.linspace(0, 2 * np.pi, 2 * points, endpoint=False)
+    r = np.where(np.arange(2 * points) % 2 == 0, outer, inner)
+    return np.stack([r * np.cos(t), r * np.sin(t)], axis=1) + np.asarray(centre)
+
+
+def build(polygon, handles="points", **options):
+    shape = mvcjax.Shape.from_polygon(polygon)
+    centre = polygon.mean(axis=0)
+    if handles == "points":
+        pins = [tuple(centre + 0.3 * (p - centre)) for p in polygon[::2][:3]]
+    else:  # a bone (its pinned points follow its length) and a point
+        pins = [mvcjax.Bone(tuple(centre + 0.4 * (polygon[0] - centre)),
+                            tuple(centre + 0.4 * (polygon[4] - centre))),
+                tuple(centre + 0.3 * (polygon[2] - centre))]
+    return mvcjax.Rig.build(shape, pins, shape_spacing=shape.diagonal / 30, **options)
+
+
+def moved(rig, seed=0):
+    rng = np.random.default_rng(seed)
+    rest = np.asarray(rig.handle_positions, np.float64)
+    return rest + rng.normal(scale=0.1, size=rest.shape) * float(rig.frame.scale)
+
+
+@given(st.integers(1, 10**6), st.sampled_from([2 ** 0.25, 2 ** 0.5, 2.0, 3.0]))
+def test_a_rung_is_the_smallest_rung_at_least_the_size(n, step):
+    ladder = mvcjax.SizeLadder(step)
+    rung = ladder.rung(n)
+    assert n <= rung <= max(np.ceil(n * step), n + 1)
+    assert ladder.rung(rung) == rung  # a rung is its own rung
+    assert ladder.rung(n - 1) <= rung  # never smaller for a larger size
+
+
+@pytest.mark.float64
+@pytest.mark.parametrize("handles", ["points", "bone"])
+def test_the_factor_cut_from_the_twins_is_the_rigs_own(handles):
+    rig = build(star(7, 30.0, 18.0, (100.0, -40.0)), handles, dtype=jnp.float64,
+                ladder=mvcjax.SizeLadder())
+    assert padded_twin(rig) is not None
+    own = dense_factor(rig.energy)
+    for name in ("shape", "handle", "normal", "normal_inverse", "spread_coef", "rows",
+                 "coef", "length", "rest"):
+        a, b = np.asarray(getattr(rig.factor, name)), np.asarray(getattr(own, name))
+        assert a.shape == b.shape, name
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-9 * np.abs(b).max(), err_msg=name)
+    np.testing.assert_array_equal(rig.factor.spread, own.spread)
+
+
+def plain_and_laddered(handles):
+    polygon = star(9, 3.0, 2.2, (-5.0, 7.0))
+    return (build(polygon, handles, dtype=jnp.float64),
+            build(polygon, handles, dtype=jnp.float64, ladder=mvcjax.SizeLadder()))
+
+
+@pytest.mark.float64
+@pytest.mark.parametrize("solver", [mvcjax.FixedG(), mvcjax.GaussNewton(),
+                                    mvcjax.FoldFree()], ids=lambda s: type(s).__name__)
+@pytest.mark.parametrize("handles", ["points", "bone"])
+def test_a_laddered_rig_holds_and_returns_what_a_plain_rig_does(solver, handles):
+    plain, rig = plain_and_laddered(handles)
+    twin = padded_twin(rig)
+    assert twin.shape_mesh.vertices.shape[0] > rig.shape_mesh.vertices.shape[0]
+    # What the rig holds: its own arrays, the twin's sizes nowhere.
+    for (path, a), b in zip(jax.tree_util.tree_leaves_with_path(rig),
+                            jax.tree.leaves(plain)):
+        assert np.shape(a) == np.shape(b), jax.tree_util.keystr(path)
+    np.testing.assert_array_equal(rig.shape_mesh.vertices, plain.shape_mesh.vertices)
+    targets, scale = moved(plain), float(plain.frame.scale)
+    got, info = rig.deform(targets, solver, return_info=True)
+    want, want_info = plain.deform(targets, solver, return_info=True)
+    assert got.shape == want.shape and got.dtype == want.dtype
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-8 * scale)
+    assert bool(info.converged) == bool(want_info.converged)
+    assert int(info.inverted) == int(want_info.inverted)
+    np.testing.assert_allclose(info.energy, want_info.energy, rtol=1e-7,
+                               atol=1e-12 * scale**2)
+
+
+@pytest.mark.float64
+def test_a_laddered_rig_solves_from_every_start_as_a_plain_rig_does():
+    plain, rig = plain_and_laddered("points")
+    targets, scale = moved(plain), float(plain.frame.scale)
+    previous = plain.solve(targets, mvcjax.FixedG(iterations=3))
+    for init in ("rest", previous):
+        np.testing.assert_allclose(rig.deform(targets, init=init),
+                                   plain.deform(targets, init=init), rtol=0,
+                                   atol=1e-8 * scale)
+        control = rig.solve(targets, init=init)
+        assert control.shape == plain.control_mesh.vertices.shape
+        np.testing.assert_allclose(control, plain.solve(targets, init=init), rtol=0,
+                                   atol=1e-8 * scale)
+    with pytest.raises(ValueError, match="init must have the control mesh's shape"):
+        rig.deform(targets, init=np.zeros((3, 2)))
+    # Traced, the rig is itself: the same answer through the caller's jit.
+    np.testing.assert_allclose(jax.jit(mvcjax.Rig.deform)(rig, targets), rig.deform(targets),
+                               rtol=0, atol=1e-8 * scale)
+    frames = np.stack([targets, moved(plain, seed=1)])
+    posed = mvcjax.deform_frames(rig, frames)
+    assert posed.shape == (2, *plain.shape_mesh.vertices.shape)
+    np.testing.assert_allclose(posed, mvcjax.deform_frames(plain, frames), rtol=0,
+                               atol=1e-8 * scale)
+
+
+def test_rigs_of_similar_sizes_share_the_twins_programs(caplog, monkeypatch):
+    monkeypatch.setattr(_programs, "_sizes", set())  # no clearing mid-test
+    ladder = mvcjax.SizeLadder()
+    first = build(star(7, 30.0, 14.0), ladder=ladder)
+    first.deform(moved(first))
+    # A star a little larger: other sizes of its own, the same rungs.
+    with jax.log_compiles(True), caplog.at_level("WARNING"):
+        caplog.clear()
+        second = build(star(7, 31.0, 14.0, (3.0, 1.0)), ladder=ladder)
+        posed = second.deform(moved(second))
+        compiled = [r.getMessage() for r in caplog.records if "Compiling" in r.getMessage()]
+    assert second.shape_mesh.vertices.shape != first.shape_mesh.vertices.shape
+    assert _programs.size_of(padded_twin(second)) == _programs.size_of(padded_twin(first))
+    assert compiled == []
+    assert posed.shape == second.shape_mesh.vertices.shape
+    assert np.all(np.isfinite(posed))
+    # Without the ladder, that rig compiles its own.
+    with jax.log_compiles(True), caplog.at_level("WARNING"):
+        caplog.clear()
+        plain = build(star(7, 31.0, 14.0, (3.0, 1.0)))
+        plain.deform(moved(plain))
+        assert any("Compiling" in r.getMessage() for r in caplog.records)
+    np.testing.assert_allclose(posed, plain.deform(moved(plain)), rtol=0,
+                               atol=1e-4 * float(plain.frame.scale))
+
+
+def test_a_transformed_rig_keeps_no_twin_and_still_poses():
+    rig = build(star(5, 10.0, 5.0), ladder=mvcjax.SizeLadder())
+    copied = jax.tree.map(lambda a: a, rig)
+    assert padded_twin(copied) is None
+    np.testing.assert_allclose(copied.deform(moved(rig)), rig.deform(moved(rig)), rtol=0,
+                               atol=1e-4 * float(rig.frame.scale))
+
+
+def test_a_sparse_factor_is_built_without_a_twin():
+    rig = build(star(5, 10.0, 5.0), ladder=mvcjax.SizeLadder(),
+                factor=mvcjax.advanced.SparseLU())
+    assert padded_twin(rig) is None
+    assert np.all(np.isfinite(rig.deform(moved(rig))))
+
+
+def test_a_bad_ladder_is_refused_with_the_fix():
+    with pytest.raises(TypeError, match=r"ladder must be an mvcjax.SizeLadder\(\)"):
+        build(star(5, 10.0, 5.0), ladder=True)
+    with pytest.raises(ValueError, match="a number above 1"):
+        mvcjax.SizeLadder(step=1.0)
