@@ -117,6 +117,7 @@ def format_table(data: dict) -> str:
     ways = [w for w in ("plain", "ladder") if w in summary]
     by_way = {w: [r for r in data["rows"] if r["way"] == w] for w in ways}
     names = {"plain": "plain", "ladder": "`ladder=SizeLadder()`"}
+    lead = {"plain": "Plain", "ladder": "With `ladder=SizeLadder()`"}
     lines = ["| rigs built | " + " | ".join(f"memory maps, {names[w]} | resident, {names[w]}"
                                            for w in ways) + " |",
              "|---|" + "---|---|" * len(ways)]
@@ -130,7 +131,7 @@ def format_table(data: dict) -> str:
     lines.append("")
     for w in ways:
         s = summary[w]
-        lines.append(f"- {names[w].capitalize()}: after the warm-up (the first "
+        lines.append(f"- {lead[w]}: after the warm-up (the first "
                      f"{2 * s['sizes_kept']} rigs), at most "
                      f"{s['max_memory_maps_after_warmup']} memory maps and "
                      f"{s['max_resident_mb_after_warmup']:.0f} MB resident; "
@@ -139,7 +140,7 @@ def format_table(data: dict) -> str:
     lines += ["", "| a new rig | " + " | ".join(names[w] for w in ways) + " |",
               "|---|" + "---|" * len(ways)]
     rows = [("build, a new star (median)", "new_size_build_s", "{:.2f} s"),
-            ("first frame, a new star (median)", "new_size_first_frame_s", "{:.2f} s"),
+            ("first frame, a new star (median)", "new_size_first_frame_s", "{:.3f} s"),
             ("build and first frame, a new star (mean)", "new_rig_total_mean_s",
              "{:.2f} s"),
             ("build, the same star again", "same_size_build_s", "{:.2f} s"),

@@ -4,13 +4,13 @@ programs.
 JAX compiles a program for every set of array shapes. A script that rigs many shapes
 (every glyph of a font, a folder of sprites) builds rigs whose sizes all differ by a
 few vertices, and each would compile its factor and its solve anew: most of a new
-rig's build and first frame. `Rig.build(..., ladder=SizeLadder())` rounds every size
-of the rig up to the next rung of a geometric ladder and keeps, beside the rig, a
-padded twin of those sizes (padded as `Rig.stack` pads, which changes no result). The
-rig itself keeps its own sizes: what a user reads from it and gets from it is as
-without the ladder. Its eager calls (`deform`, `solve`) run the twin's program, shared
-by every rig on the same rungs, and return the rig's own rows; its factor is cut from
-the twin's, so the build compiles nothing new either.
+rig's build and first frame. `Rig.build(..., ladder=SizeLadder())` rounds the rig's
+sizes up to the rungs of a geometric ladder and keeps, beside the rig, a twin padded
+to them (as `Rig.stack` pads, which changes no result). The rig itself keeps its own
+sizes: what a user reads from it and gets from it is as without the ladder. Its eager
+calls (`deform`, `solve`, `deform_frames`) run the twin's programs, shared by every
+rig on the same rungs, and return the rig's own rows; its factor is cut from the
+twin's, so the build compiles nothing new either.
 """
 
 from __future__ import annotations
@@ -85,14 +85,12 @@ class SizeLadder(eqx.Module):
 
 
 # Widths that vary by a few entries between rigs, padded to where most rigs fall.
-_FLOORS = {"ring": 12, "skin_width": 23, "pin_width": 1, "spread": 23}
+_FLOORS = {"ring": 12, "skin_width": 23, "spread": 23}
 
 
 def twin_parts(parts: dict, ladder: SizeLadder):
-    """For a rig's parts (its fields but the factor), the dense factor of its padded
-    twin, and `finish(rig)`, which pads the rig built from them into the twin.
-
-    `finish.energy` is the twin's energy; `finish.sizes` its sizes."""
+    """For a rig's parts (its fields but the factor), its padded twin's dense factor
+    and energy, and `finish(rig)`, which pads the rig built from them into the twin."""
     from ._stack import _factors, _pad_rig, _padded_energy, _skinnings, common_sizes
 
     sizes = ladder.sizes(common_sizes([types.SimpleNamespace(**parts)]))
@@ -107,8 +105,7 @@ def twin_parts(parts: dict, ladder: SizeLadder):
         (skinning,) = _skinnings([rig], sizes, None, shapes)
         return _pad_rig(rig, sizes, skinning, factor, energy)
 
-    finish.energy, finish.sizes = energy, sizes
-    return factor, finish
+    return factor, energy, finish
 
 
 def padded_twin(rig):

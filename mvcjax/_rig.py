@@ -285,7 +285,8 @@ class Rig(JittableModule):
                 same rungs. What the rig holds and returns keeps its own sizes, equal to
                 a rig built without the ladder to float rounding. The twin is not a
                 field: transformations, and rigs made from this one (`with_weights`,
-                `with_pin`, ...), do without it. Default None: no twin.
+                `with_pin`, ...), do without it. The twin about doubles the rig's
+                memory. Default None: no twin.
                 Applies to a dense factor only (a control mesh of up to
                 `FactorBySize.max_dense` vertices); a larger rig is built without.
         """
@@ -371,8 +372,8 @@ class Rig(JittableModule):
             note_size(rig)  # a bounded number of sizes' programs kept (`_programs`)
             return rig
         # The factor is cut from the twin's: compiled once per rung, not per rig.
-        twin_factor, finish = twin_parts(parts, ladder)
-        rig = cls(**parts, factor=cut_factor(twin_factor, finish.energy, energy))
+        twin_factor, twin_energy, finish = twin_parts(parts, ladder)
+        rig = cls(**parts, factor=cut_factor(twin_factor, twin_energy, energy))
         twin = finish(rig)
         note_size(twin)
         object.__setattr__(rig, "_twin", twin)  # not a field: no transformation keeps it
