@@ -697,37 +697,42 @@ def solve_in_frame(rig: Rig, targets, solver: AbstractSolver, init):
     return vertices, info.rescaled(rig.frame.scale**2)
 
 
-def _compiled_when_eager(rows):
+def _traced(*trees) -> bool:
+    return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(trees))
+
+
+def _compiled_when_eager(fn):
     """`fn(rig, targets, solver, init)`, compiled with the rig as an argument when called
     outside any transformation, inline inside one (the caller's `jit` compiles it).
-    `rows(rig)` is how many rows of `fn`'s first output are the rig's own.
 
     Eager calls would otherwise run op by op, compiling every loop afresh, and keep
     those programs, each holding memory maps, until a long session runs out. As an
     argument, never closed over, a new rig of the same sizes reuses the program. Inside
     a transformation a nested `jit` is no faster, and jaxopt's implicit gradients leak a
     tracer through one.
-
-    A rig built with a `SizeLadder` runs its padded twin's program instead (shared by the
-    rigs on the same rungs), and gets its own rows back, cut on the host: an eager slice
-    would compile a program for every size.
     """
-    def wrap(fn):
-        compiled = eqx.filter_jit(fn)
+    compiled = eqx.filter_jit(fn)
 
+    def call(rig, targets, solver, init):
+        return (fn if _traced(rig, targets, init) else compiled)(rig, targets, solver, init)
+
+    return call
+
+
+def _as_twin(rows):
+    """`fn(rig, targets, solver, init)` run, for a rig built with a `SizeLadder` and
+    called outside any transformation, on its padded twin (whose program the rigs on the
+    same rungs share); `rows(rig)` of its first output are the rig's own, cut on the
+    host (an eager slice would compile a program for every size)."""
+    def wrap(fn):
         def call(rig, targets, solver, init):
-            traced = any(isinstance(leaf, jax.core.Tracer)
-                         for leaf in jax.tree.leaves((rig, targets, init)))
-            if traced:
-                return fn(rig, targets, solver, init)
             twin = padded_twin(rig)
-            if twin is None or (not isinstance(init, str)
-                                and np.shape(init) != rig.energy.rest.shape):
-                return compiled(rig, targets, solver, init)
+            if (twin is None or _traced(rig, targets, init)
+                    or (not isinstance(init, str) and np.shape(init) != rig.energy.rest.shape)):
+                return fn(rig, targets, solver, init)
             if not isinstance(init, str):  # padded vertices start on vertex 0
-                init = np.asarray(init)
-                init = _rows_like(init, twin.energy.rest.shape[0])
-            out, info = compiled(twin, targets, solver, init)
+                init = _rows_like(np.asarray(init), twin.energy.rest.shape[0])
+            out, info = fn(twin, targets, solver, init)
             return to_device(np.asarray(out)[:rows(rig)], out.dtype), info
 
         return call
@@ -740,13 +745,15 @@ def _rows_like(a: np.ndarray, count: int) -> np.ndarray:
     return np.concatenate([a, np.broadcast_to(a[:1], (count - len(a), *a.shape[1:]))])
 
 
-@_compiled_when_eager(lambda rig: rig.energy.rest.shape[0])
+@_as_twin(lambda rig: rig.energy.rest.shape[0])
+@_compiled_when_eager
 def _solve(rig: Rig, targets, solver: AbstractSolver, init):
     vertices, info = solve_in_frame(rig, targets, solver, init)
     return rig.frame.to_world(vertices), info
 
 
-@_compiled_when_eager(lambda rig: rig.shape_mesh.vertices.shape[0])
+@_as_twin(lambda rig: rig.shape_mesh.vertices.shape[0])
+@_compiled_when_eager
 def _deform(rig: Rig, targets, solver: AbstractSolver, init):
     vertices, info = solve_in_frame(rig, targets, solver, init)
     return rig.skinning(vertices, rig.frame), info

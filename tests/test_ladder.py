@@ -106,8 +106,11 @@ def test_a_laddered_rig_solves_from_every_start_as_a_plain_rig_does():
                                    atol=1e-8 * scale)
     with pytest.raises(ValueError, match="init must have the control mesh's shape"):
         rig.deform(targets, init=np.zeros((3, 2)))
-    # Traced, the rig is itself: the same answer through the caller's jit.
+    # Traced, the rig is itself: the same answer through the caller's jit, whether it
+    # takes the rig as an argument or closes over it and traces the targets alone.
     np.testing.assert_allclose(jax.jit(mvcjax.Rig.deform)(rig, targets), rig.deform(targets),
+                               rtol=0, atol=1e-8 * scale)
+    np.testing.assert_allclose(jax.jit(lambda t: rig.deform(t))(targets), rig.deform(targets),
                                rtol=0, atol=1e-8 * scale)
     frames = np.stack([targets, moved(plain, seed=1)])
     posed = mvcjax.deform_frames(rig, frames)
