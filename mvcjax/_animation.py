@@ -190,7 +190,8 @@ def deform_frames(
         return _deform_character(rig, targets, solver, min(chunk, frames))
     devices = [jax.local_devices()[0]] if devices is None else devices
     twin = padded_twin(rig)
-    if out is None and twin is not None and not isinstance(targets, jax.core.Tracer):
+    if (out is None and len(devices) == 1 and twin is not None
+            and not isinstance(targets, jax.core.Tracer)):
         # A laddered rig poses as its twin, whose program rigs on its rungs share; its
         # own rows are cut on the host (an eager slice compiles a program per size).
         posed = deform_frames(twin, targets, solver, chunk=chunk, devices=devices)

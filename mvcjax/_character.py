@@ -263,6 +263,10 @@ class Character(JittableModule):
             options: further `Rig.build` options for every part (`control`, `skinning`,
                 `weights`, `dtype`, ...).
         """
+        if options.get("ladder") is not None:
+            raise ValueError("Character.build poses its parts in one program of the "
+                             "character's own sizes, so ladder= would only add padded "
+                             "twins: leave it out.")
         layers = load_layers(layers)
         names = tuple(layer.name for layer in layers)
         shapes = _part_shapes(layers, alpha_threshold, tolerance)

@@ -16,7 +16,9 @@ twin's, so the build compiles nothing new either.
 from __future__ import annotations
 
 import math
+import numbers
 import types
+import weakref
 
 import equinox as eqx
 import numpy as np
@@ -25,6 +27,15 @@ from ._factor import DenseFactor
 from ._skinning import block_width_limit
 from ._stencils import transpose_table
 from ._xla import to_device
+
+
+def _step(step) -> float:
+    if not (isinstance(step, numbers.Real) and not isinstance(step, bool)
+            and 1.0 < step <= 4.0):
+        raise ValueError(f"SizeLadder(step={step!r}): the step is the ratio between rungs, "
+                         "a number above 1 and at most 4 (sqrt(2), the default, pads a size "
+                         "by at most its half again).")
+    return float(step)
 
 
 class SizeLadder(eqx.Module):
@@ -43,13 +54,7 @@ class SizeLadder(eqx.Module):
             more programs).
     """
 
-    step: float = eqx.field(default=2 ** 0.5, static=True)
-
-    def __check_init__(self):
-        if not (isinstance(self.step, (int, float)) and 1.0 < self.step <= 4.0):
-            raise ValueError(f"SizeLadder(step={self.step!r}): the step is the ratio "
-                             "between rungs, a number above 1 and at most 4 (sqrt(2), the "
-                             "default, pads a size by at most its half again).")
+    step: float = eqx.field(default=2 ** 0.5, static=True, converter=_step)
 
     def rung(self, n: int) -> int:
         """The smallest rung at least `n`."""
@@ -60,10 +65,16 @@ class SizeLadder(eqx.Module):
             k += 1
         return math.ceil(self.step ** k - 1e-9)
 
+    def padded(self, name: str, n: int) -> int:
+        """Size `name` of `n` padded: to its rung, or to a floor where there is one and
+        `n` is at least half of it (widths that vary by a few entries between rigs)."""
+        floor = _FLOORS.get(name, 0)
+        return floor if floor / 2 <= n <= floor else self.rung(n)
+
     def sizes(self, sizes: dict[str, int]) -> dict[str, int]:
         """A rig's sizes (`_stack.common_sizes`), padded: see the class."""
         n, c = self.rung(sizes["shape_vertices"]), self.rung(sizes["control_vertices"])
-        out = {k: max(self.rung(v), _FLOORS.get(k, 0)) for k, v in sizes.items()}
+        out = {k: self.padded(k, v) for k, v in sizes.items()}
         # A triangulation of v vertices has under 2v triangles and 3v edges, and its
         # polygon (the Laplacian's rows) under v vertices.
         out.update(shape_vertices=n, control_vertices=c, mvc=c, shape_faces=2 * n,
@@ -84,7 +95,8 @@ class SizeLadder(eqx.Module):
         return (largest[0], max(block_width_limit(width), largest[1]), *largest[2:])
 
 
-# Widths that vary by a few entries between rigs, padded to where most rigs fall.
+# Widths that vary by a few entries between rigs, padded to where most rigs fall: a
+# mean value ring, a skinning row (blended), a vertex's local rows.
 _FLOORS = {"ring": 12, "skin_width": 23, "spread": 23}
 
 
@@ -95,8 +107,7 @@ def twin_parts(parts: dict, ladder: SizeLadder):
 
     sizes = ladder.sizes(common_sizes([types.SimpleNamespace(**parts)]))
     energy = _padded_energy(parts["energy"], sizes)
-    (factor,) = _factors([energy], None,
-                         lambda width: max(ladder.rung(width), _FLOORS["spread"]))
+    (factor,) = _factors([energy], None, lambda width: ladder.padded("spread", width))
 
     def finish(rig):
         def shapes(name, largest, tile):
@@ -108,9 +119,22 @@ def twin_parts(parts: dict, ladder: SizeLadder):
     return factor, energy, finish
 
 
+# Each laddered rig's twin, by the rig's id, for as long as the rig lives. Beside the
+# rig, not in it: an attribute of its own would change how equinox flattens it (and so
+# its pytree structure, which stacks and `jax.tree.map` compare with plain rigs').
+_TWINS: dict[int, object] = {}
+
+
+def keep_twin(rig, twin) -> None:
+    """Keep `twin` as `rig`'s until `rig` is collected."""
+    _TWINS[id(rig)] = twin
+    weakref.finalize(rig, _TWINS.pop, id(rig), None)
+
+
 def padded_twin(rig):
-    """The twin `Rig.build(..., ladder=...)` kept beside `rig`, or None."""
-    return vars(rig).get("_twin")
+    """The twin `Rig.build(..., ladder=...)` kept for this very rig object, or None
+    (for any other, a rig rebuilt by a transformation included)."""
+    return _TWINS.get(id(rig))
 
 
 def cut_factor(padded: DenseFactor, twin_energy, energy) -> DenseFactor:

@@ -25,7 +25,7 @@ from ._energy import Energy, Term, Weights, check_weights, total_energy
 from ._factor import AbstractFactor, FactorBySize, as_factor_method
 from ._folds import inverted_count
 from ._handles import Handles, check_handles, make_handles, pin
-from ._ladder import SizeLadder, cut_factor, padded_twin, twin_parts
+from ._ladder import SizeLadder, cut_factor, keep_twin, padded_twin, twin_parts
 from ._local_frame import Frame, bounding_frame, check_representable, frame_array, points_to_local
 from ._module import JittableModule
 from ._programs import note_size
@@ -280,15 +280,17 @@ class Rig(JittableModule):
                 millions); raise it if you mean it.
             ladder: `mvcjax.SizeLadder()` to share compiled programs between rigs of
                 similar sizes (for scripts that rig many shapes): the rig keeps, beside
-                itself, a twin padded to the ladder's sizes, and its eager `deform` and
-                `solve` run the twin's program, compiled once for all the rigs on the
-                same rungs. What the rig holds and returns keeps its own sizes, equal to
-                a rig built without the ladder to float rounding. The twin is not a
-                field: transformations, and rigs made from this one (`with_weights`,
-                `with_pin`, ...), do without it. The twin about doubles the rig's
-                memory. Default None: no twin.
+                itself, a twin padded to the ladder's sizes, and its eager `deform`,
+                `solve` and `deform_frames` run the twin's programs, compiled once for
+                all the rigs on the same rungs. What the rig holds and returns keeps its
+                own sizes, equal to a rig built without the ladder to float rounding
+                with `FixedG`'s fixed steps, and to within their tolerance with the
+                solvers that stop at one (as in a stack). The twin is not a field:
+                transformations, and rigs made from this one (`with_weights`,
+                `with_pin`, ...), do without it. It about doubles the rig's memory.
                 Applies to a dense factor only (a control mesh of up to
                 `FactorBySize.max_dense` vertices); a larger rig is built without.
+                Default None: no twin.
         """
         if not isinstance(shape, Shape):
             raise TypeError(
@@ -376,7 +378,7 @@ class Rig(JittableModule):
         rig = cls(**parts, factor=cut_factor(twin_factor, twin_energy, energy))
         twin = finish(rig)
         note_size(twin)
-        object.__setattr__(rig, "_twin", twin)  # not a field: no transformation keeps it
+        keep_twin(rig, twin)  # not a field: no transformation keeps it
         return rig
 
     @classmethod

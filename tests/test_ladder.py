@@ -75,7 +75,9 @@ def test_a_laddered_rig_holds_and_returns_what_a_plain_rig_does(solver, handles)
     plain, rig = plain_and_laddered(handles)
     twin = padded_twin(rig)
     assert twin.shape_mesh.vertices.shape[0] > rig.shape_mesh.vertices.shape[0]
-    # What the rig holds: its own arrays, the twin's sizes nowhere.
+    # What the rig holds: its own arrays, the twin's sizes nowhere, and the structure of
+    # a plain rig (stacks and tree maps mix them).
+    assert jax.tree.structure(rig) == jax.tree.structure(plain)
     for (path, a), b in zip(jax.tree_util.tree_leaves_with_path(rig),
                             jax.tree.leaves(plain)):
         assert np.shape(a) == np.shape(b), jax.tree_util.keystr(path)
@@ -112,6 +114,9 @@ def test_a_laddered_rig_solves_from_every_start_as_a_plain_rig_does():
                                rtol=0, atol=1e-8 * scale)
     np.testing.assert_allclose(jax.jit(lambda t: rig.deform(t))(targets), rig.deform(targets),
                                rtol=0, atol=1e-8 * scale)
+    stack = mvcjax.Rig.stack([plain, rig.with_weights(mvcjax.Weights())])
+    both = jax.vmap(lambda r, t: r.deform(t))(stack, np.stack([targets, targets]))
+    np.testing.assert_allclose(both[1], rig.deform(targets), rtol=0, atol=1e-8 * scale)
     frames = np.stack([targets, moved(plain, seed=1)])
     posed = mvcjax.deform_frames(rig, frames)
     assert posed.shape == (2, *plain.shape_mesh.vertices.shape)
@@ -165,3 +170,10 @@ def test_a_bad_ladder_is_refused_with_the_fix():
         build(star(5, 10.0, 5.0), ladder=True)
     with pytest.raises(ValueError, match="a number above 1"):
         mvcjax.SizeLadder(step=1.0)
+    with pytest.raises(ValueError, match="a number above 1"):
+        mvcjax.SizeLadder(step=True)
+    assert mvcjax.SizeLadder(step=np.float32(1.5)).rung(10) == 12
+    with pytest.raises(ValueError, match="ladder= would only add padded twins"):
+        mvcjax.Character.build(mvcjax.datasets.layered_figure(),
+                               mvcjax.datasets.layered_figure_handles(),
+                               ladder=mvcjax.SizeLadder())
