@@ -287,7 +287,7 @@ class Rig(JittableModule):
                 with `FixedG`'s fixed steps, and to within their tolerance with the
                 solvers that stop at one (as in a stack). The twin is not a field:
                 transformations, and rigs made from this one (`with_weights`,
-                `with_pin`, ...), do without it. It about doubles the rig's memory.
+                `with_pin`, ...), do without it. It takes two to three times the rig's memory.
                 Applies to a dense factor only (a control mesh of up to
                 `FactorBySize.max_dense` vertices); a larger rig is built without.
                 Default None: no twin.
