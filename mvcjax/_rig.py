@@ -286,11 +286,11 @@ class Rig(JittableModule):
                 own sizes, equal to a rig built without the ladder to float rounding
                 with `FixedG`'s fixed steps, and to within their tolerance with the
                 solvers that stop at one (as in a stack). The twin is not a field:
-                transformations, and rigs made from this one (`with_weights`,
-                `with_pin`, ...), do without it. It takes two to three times the rig's memory.
-                Applies to a dense factor only (a control mesh of up to
-                `FactorBySize.max_dense` vertices); a larger rig is built without.
-                Default None: no twin.
+                transformations, and rigs made from this one but by `with_weights`
+                (`with_pin`, `with_terms`, ...), do without it. It takes two to three
+                times the rig's memory. Applies to a dense factor only (a control mesh
+                of up to `FactorBySize.max_dense` vertices); a larger rig is built
+                without. Default None: no twin.
         """
         if not isinstance(shape, Shape):
             raise TypeError(
@@ -447,12 +447,21 @@ class Rig(JittableModule):
         """The same rig with other term weights (an `mvcjax.Weights`).
 
         Recomputes the factor: with a dense `G` this is jittable and differentiable (no
-        recompilation); a sparse factor is refactored on the host, outside `jit`.
+        recompilation); a sparse factor is refactored on the host, outside `jit`. A rig
+        built with a `SizeLadder` gets a twin with the new weights too (outside `jit`).
         """
         weights = check_weights(weights).verified().astype(self.energy.rest.dtype)
         energy = eqx.tree_at(lambda e: e.weights, self.energy, weights)
-        factor = self.factor.rebuild(energy)
-        return eqx.tree_at(lambda r: (r.energy, r.factor), self, (energy, factor))
+        twin = padded_twin(self)
+        if twin is None or _traced(weights):
+            factor = self.factor.rebuild(energy)
+            return eqx.tree_at(lambda r: (r.energy, r.factor), self, (energy, factor))
+        # The twin's factor, rebuilt by its program, and the rig's cut from it.
+        twin = twin.with_weights(weights)
+        factor = cut_factor(twin.factor, twin.energy, energy)
+        rig = eqx.tree_at(lambda r: (r.energy, r.factor), self, (energy, factor))
+        keep_twin(rig, twin)
+        return rig
 
     def with_terms(self, *terms: Any) -> Rig:
         """The same rig with further terms added to the energy (6) (`mvcjax.advanced.Term`,

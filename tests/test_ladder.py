@@ -114,6 +114,13 @@ def test_a_laddered_rig_solves_from_every_start_as_a_plain_rig_does():
                                rtol=0, atol=1e-8 * scale)
     np.testing.assert_allclose(jax.jit(lambda t: rig.deform(t))(targets), rig.deform(targets),
                                rtol=0, atol=1e-8 * scale)
+    # New weights: the twin follows, and the rig still poses as a plain one.
+    weights = mvcjax.Weights(laplacian=2.0, mvc=0.5, length=3.0)
+    reweighted = rig.with_weights(weights)
+    assert padded_twin(reweighted) is not None
+    np.testing.assert_allclose(reweighted.deform(targets),
+                               plain.with_weights(weights).deform(targets), rtol=0,
+                               atol=1e-8 * scale)
     stack = mvcjax.Rig.stack([plain, rig.with_weights(mvcjax.Weights())])
     both = jax.vmap(lambda r, t: r.deform(t))(stack, np.stack([targets, targets]))
     np.testing.assert_allclose(both[1], rig.deform(targets), rtol=0, atol=1e-8 * scale)
