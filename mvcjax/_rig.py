@@ -33,6 +33,7 @@ from ._shape import Shape
 from ._skinning import BarycentricSkinning, BlendedMVCSkinning, Skinning, as_skinning
 from ._solvers import DEFAULT_SOLVER, AbstractSolver
 from ._solvers._base import SkinnedMesh
+from ._stack import pad_rows
 from ._start import STARTS, start_vertices, turn_weights
 from ._stencils import LAPLACIAN
 from ._xla import to_device
@@ -742,18 +743,14 @@ def _as_twin(rows):
                     or (not isinstance(init, str) and np.shape(init) != rig.energy.rest.shape)):
                 return fn(rig, targets, solver, init)
             if not isinstance(init, str):  # padded vertices start on vertex 0
-                init = _rows_like(np.asarray(init), twin.energy.rest.shape[0])
+                init = np.asarray(init)
+                init = pad_rows(init, twin.energy.rest.shape[0], init[0])
             out, info = fn(twin, targets, solver, init)
             return to_device(np.asarray(out)[:rows(rig)], out.dtype), info
 
         return call
 
     return wrap
-
-
-def _rows_like(a: np.ndarray, count: int) -> np.ndarray:
-    """`a` with copies of its first row appended up to `count` rows."""
-    return np.concatenate([a, np.broadcast_to(a[:1], (count - len(a), *a.shape[1:]))])
 
 
 @_as_twin(lambda rig: rig.energy.rest.shape[0])

@@ -44,7 +44,7 @@ from ._xla import to_device
 _FACTOR_LIMIT_BYTES = 2**31
 
 
-def _rows(a: Any, count: int, fill: Any = 0) -> np.ndarray:
+def pad_rows(a: Any, count: int, fill: Any = 0) -> np.ndarray:
     """`a` with rows equal to `fill` appended up to `count` rows."""
     a = np.asarray(a)
     extra = np.broadcast_to(np.asarray(fill, a.dtype), (count - len(a), *a.shape[1:]))
@@ -109,22 +109,22 @@ def _padded_energy(energy, sizes: dict[str, int]):
     holders = np.arange(c0, c)
     # Each padded vertex's row is `V_p - V_0`; further rows `V_0 - V_0` are zero.
     ring_weight = _columns(e.mvc_weight, w)
-    ring_weight = _rows(_rows(ring_weight, len(ring_weight) + len(holders),
+    ring_weight = pad_rows(pad_rows(ring_weight, len(ring_weight) + len(holders),
                               np.eye(1, w)[0]), g, np.eye(1, w)[0])
     laplacian, edges, pinned = sizes["laplacian"], sizes["edges"], sizes["pinned"]
     dtype = e.rest.dtype
     arrays = dict(
-        rest=_rows(e.rest, c, np.asarray(e.rest)[0]),
-        laplacian_index=_rows(e.laplacian_index, laplacian),
-        laplacian_length=_rows(e.laplacian_length, laplacian),
-        mvc_centre=_rows(np.concatenate([np.asarray(e.mvc_centre), holders]), g),
-        mvc_ring=_rows(_columns(e.mvc_ring, w), g),
+        rest=pad_rows(e.rest, c, np.asarray(e.rest)[0]),
+        laplacian_index=pad_rows(e.laplacian_index, laplacian),
+        laplacian_length=pad_rows(e.laplacian_length, laplacian),
+        mvc_centre=pad_rows(np.concatenate([np.asarray(e.mvc_centre), holders]), g),
+        mvc_ring=pad_rows(_columns(e.mvc_ring, w), g),
         mvc_weight=ring_weight,
-        edges=_rows(e.edges, edges),
-        edge_length=_rows(e.edge_length, edges),
-        handles=_rows(_columns(e.handles, sizes["pin_width"]), pinned),
-        handle_coef=_rows(_columns(e.handle_coef, sizes["pin_width"]), pinned),
-        faces=_rows(e.faces, sizes["control_faces"]),
+        edges=pad_rows(e.edges, edges),
+        edge_length=pad_rows(e.edge_length, edges),
+        handles=pad_rows(_columns(e.handles, sizes["pin_width"]), pinned),
+        handle_coef=pad_rows(_columns(e.handle_coef, sizes["pin_width"]), pinned),
+        faces=pad_rows(e.faces, sizes["control_faces"]),
     )
     return eqx.tree_at(
         lambda e: [getattr(e, k) for k in arrays], e,
@@ -139,8 +139,8 @@ def _padded_rows(skinning: Skinning, count: int, width: int):
     slots, s = np.asarray(skinning.slots), tile_weight.shape[2]
     index = tile_index[:, slots // s].T.astype(np.int64)
     weight = tile_weight[:, slots // s, slots % s].T.astype(np.float64)
-    return (_rows(_columns(index, width), count, _columns(index, width)[0]),
-            _rows(_columns(weight, width), count, _columns(weight, width)[0]))
+    return (pad_rows(_columns(index, width), count, _columns(index, width)[0]),
+            pad_rows(_columns(weight, width), count, _columns(weight, width)[0]))
 
 
 def _skinnings(rigs, sizes: dict[str, int], like: Skinning | None,
@@ -180,10 +180,10 @@ def _skinnings(rigs, sizes: dict[str, int], like: Skinning | None,
     return out
 
 
-def _factors(energies, width: int | None, rung=None) -> list[DenseFactor]:
+def _factors(energies, width: int | None, round_width=None) -> list[DenseFactor]:
     """Dense factors of the padded energies, their spread tables padded alike (with the
     entry past the last, whose coefficient is zero) to the widest (rounded up by
-    `rung`, if given) or to `width`: one size, so one compiled program for them all.
+    `round_width`, if given) or to `width`: one size, so one compiled program for them all.
 
     The padded rows, all on one vertex, are left out of the tables: they are zero
     vectors, and listed they would make the table as wide as their count."""
@@ -195,7 +195,7 @@ def _factors(energies, width: int | None, rung=None) -> list[DenseFactor]:
                                         energy.num_vertices), rows.size))
     if width is None:
         width = max(s.shape[1] for s, _ in spreads)
-        width = width if rung is None else rung(width)
+        width = width if round_width is None else round_width(width)
     if any(s.shape[1] > width for s, _ in spreads):
         raise _TooLarge(f"a control vertex in more rows than {width}")
     # Padded with the entry past the last, as `transpose_table` pads.
@@ -214,17 +214,17 @@ def _pad_rig(rig, sizes: dict[str, int], skinning: Skinning, factor: DenseFactor
         lambda g: (g.handles.first, g.handles.second, g.handles.along, g.handles.length,
                    g.handles.rigid, g.handles.padding, g.shape_mesh, g.control_mesh,
                    g.skinning, g.energy, g.factor, g.turns), rig,
-        (ints(_rows(h.first, r)), ints(_rows(h.second, r)), real(_rows(h.along, r)),
-         real(_rows(h.length, r)), to_device(_rows(h.rigid, r), bool),
-         to_device(_rows(h.padding, r, True), bool),
-         type(sm)(real(_rows(sm.vertices, n, np.asarray(sm.vertices)[0])),
-                  ints(_rows(sm.faces, sizes["shape_faces"])), ints(_rows(sm.handles, r))),
-         type(cm)(real(_rows(cm.vertices, c, np.asarray(cm.vertices)[0])),
-                  ints(_rows(cm.faces, sizes["control_faces"])),
-                  ints(_rows(cm.outer, sizes["outer"], np.asarray(cm.outer)[-1])),
-                  energy.mvc_centre, ints(_rows(cm.handles, r))),
+        (ints(pad_rows(h.first, r)), ints(pad_rows(h.second, r)), real(pad_rows(h.along, r)),
+         real(pad_rows(h.length, r)), to_device(pad_rows(h.rigid, r), bool),
+         to_device(pad_rows(h.padding, r, True), bool),
+         type(sm)(real(pad_rows(sm.vertices, n, np.asarray(sm.vertices)[0])),
+                  ints(pad_rows(sm.faces, sizes["shape_faces"])), ints(pad_rows(sm.handles, r))),
+         type(cm)(real(pad_rows(cm.vertices, c, np.asarray(cm.vertices)[0])),
+                  ints(pad_rows(cm.faces, sizes["control_faces"])),
+                  ints(pad_rows(cm.outer, sizes["outer"], np.asarray(cm.outer)[-1])),
+                  energy.mvc_centre, ints(pad_rows(cm.handles, r))),
          skinning, energy, factor,
-         real(_columns(_rows(rig.turns, c, np.asarray(rig.turns)[0]), r))))
+         real(_columns(pad_rows(rig.turns, c, np.asarray(rig.turns)[0]), r))))
 
 
 def _check_stackable(rigs) -> None:
@@ -379,9 +379,9 @@ def stack_renderers(renderers: Any, like: Any = None):
         r = dataclasses.replace(r, tile=tile, budget=budget)
         padded.append(eqx.tree_at(
             lambda r: (r.faces, r.boundary, r.texture_points, r.texture, r.rest, r.level), r,
-            (to_device(_rows(r.faces, f), np.int32), to_device(_rows(r.boundary, f), bool),
-             to_device(_rows(r.texture_points, n, np.asarray(r.texture_points)[0]), dtype),
+            (to_device(pad_rows(r.faces, f), np.int32), to_device(pad_rows(r.boundary, f), bool),
+             to_device(pad_rows(r.texture_points, n, np.asarray(r.texture_points)[0]), dtype),
              to_device(texture, dtype),
-             to_device(_rows(r.rest, n, np.asarray(r.rest)[0]), dtype),
-             to_device(_rows(r.level, f), np.int32))))
+             to_device(pad_rows(r.rest, n, np.asarray(r.rest)[0]), dtype),
+             to_device(pad_rows(r.level, f), np.int32))))
     return _stacked(padded)
