@@ -47,7 +47,8 @@ class SizeLadder(eqx.Module):
     them, as large as a mesh of that many vertices can need (triangles, edges, the
     Laplacian's rows, the skinning's tiles), so that rigs differ in two or three
     counts, not a dozen. The twin then does more arithmetic than its rig: up to
-    `step` times as many vertices, and up to half again as many energy rows.
+    `step` times as many vertices, and four energy rows per control vertex where a
+    rig has under three.
 
     Attributes:
         step: the ratio between rungs, above 1 (a larger step pads more and shares
