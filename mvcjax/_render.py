@@ -47,6 +47,8 @@ _FRINGE = 0.5
 # Tiles drawn per step of the raster's loop, and pixels shaded per step of the shading's.
 _CHUNK = 2048
 _SHADE_CHUNK = 8192
+# Pixels listed together for shading (a run along a row of the picture).
+_SHADE_RUN = 8
 # Coverage steps in a candidate's key, and the bands of depth of the draw order.
 _COVERAGE_BITS = 6
 _DEPTH_LEVELS = 16
@@ -966,8 +968,8 @@ def _draw(renderer: Renderer, vertices, window):
     # shading (texture position and edge coverage) below.
     face_bits, layers = _raster(renderer, jax.lax.stop_gradient(tri), rows, cols)
     table = materialise(_face_table(tri, renderer.texture_points[faces], renderer.boundary))
-    pixels = rows * cols
-    colour = jnp.broadcast_to(_premultiply(renderer.background), (pixels, 4))
+    background = _premultiply(renderer.background)
+    colour = background
     front = layers[0]
     if renderer.antialias:
         # The layer beneath shows only where the front triangle covers a pixel partly
@@ -977,60 +979,97 @@ def _draw(renderer: Renderer, vertices, window):
         if renderer.see_through:
             partial = jnp.ones_like(partial)
         beneath = jnp.where(partial, layers[1], -1)
-        colour = _shade_where(renderer, table, beneath, face_bits, cols, colour)
-    colour = _shade_where(renderer, table, front, face_bits, cols, colour)
-    alpha = colour[:, 3:]
+        colour = _shade_where(renderer, table, beneath, face_bits, cols, background,
+                              background)
+    # The front layer is the last: its pixels are written straight (not premultiplied)
+    # into a picture of the straight background, so that no pass over the whole picture
+    # is left to do.
+    colour = _shade_where(renderer, table, front, face_bits, cols, colour,
+                          _straight(background), finish=_straight)
+    return colour.reshape(rows, cols, 4)
+
+
+def _straight(colour):
+    """Premultiplied RGBA (`(..., 4)`) made straight, clipped to [0, 1]."""
+    alpha = colour[..., 3:]
     straight = jnp.where(jnp.arange(4) < 3, colour / jnp.where(alpha > 0, alpha, 1.0), colour)
-    return jnp.clip(straight, 0.0, 1.0).reshape(rows, cols, 4)
+    return jnp.clip(straight, 0.0, 1.0)
 
 
-def _shade_where(renderer: Renderer, table, layer, face_bits: int, cols: int, colour):
-    """`colour` with the pixels that `layer` draws (a key per pixel, -1 for none) shaded
-    over it. Only those pixels are shaded: they are listed first (a prefix sum), then
-    taken `_SHADE_CHUNK` at a time by a loop of a fixed number of steps whose steps past
-    the list are skipped (a fixed count keeps it differentiable in reverse mode). The
-    loop's length is the shortest of a few (`_shade_steps`) that holds the list, and a
-    layer that draws nothing (the layer beneath, often) skips it all. A pixel is listed
-    once, so its colour under is read from `colour` as given."""
+def _shade_where(renderer: Renderer, table, layer, face_bits: int, cols: int, under, fill,
+                 finish=None):
+    """A picture (`(pixels, 4)`) of the colour `fill` (`(4,)`) with the pixels that
+    `layer` draws (a key per pixel, -1 for none) shaded over the premultiplied `under`
+    (`(pixels, 4)`, or one colour `(4,)` under all), passed through `finish` if given.
+
+    Only the runs of `_SHADE_RUN` pixels that hold a drawn pixel are shaded: they are
+    listed first (a prefix sum over the runs, a fraction of one over the pixels), then
+    taken `_SHADE_CHUNK` pixels at a time by a loop of a fixed number of steps whose
+    steps past the list are skipped (a fixed count keeps it differentiable in reverse
+    mode). Runs move as rows of `_SHADE_RUN` pixels: one index per run where a pixel's
+    own would cost a lookup each. The loop's length is the shortest of a few
+    (`_shade_steps`) that holds the list, and a layer that draws nothing (the layer
+    beneath, often) skips it all. A run is listed once, so its colour under is read from
+    `under` as given. The picture is filled inside each branch of the loop's length: a
+    picture passed in would be copied whole by the branches that keep it."""
     pixels = layer.shape[0]
-    drawn = layer >= 0
+    runs = -(-pixels // _SHADE_RUN)
+    padding = runs * _SHADE_RUN - pixels
+    in_runs = lambda a, fill: jnp.pad(a, [(0, padding)] + [(0, 0)] * (a.ndim - 1),  # noqa: E731
+                                      constant_values=fill).reshape(runs, _SHADE_RUN,
+                                                                    *a.shape[1:])
+    layer = in_runs(layer, -1)
+    if under.ndim == 2:
+        under = in_runs(under, 0)
+    drawn = jnp.any(layer >= 0, axis=1)
     count = jnp.sum(drawn, dtype=jnp.int32)
+    chunk = _SHADE_CHUNK // _SHADE_RUN
+    lane = jnp.arange(_SHADE_RUN, dtype=jnp.int32)
 
     def shade(listed, index):
-        at = jax.lax.dynamic_slice(listed, (index * _SHADE_CHUNK,), (_SHADE_CHUNK,))
-        pixel = jnp.minimum(at, pixels - 1)
-        key = jnp.where(at < pixels, layer[pixel], -1)
+        at = jax.lax.dynamic_slice(listed, (index * chunk,), (chunk,))
+        run = jnp.minimum(at, runs - 1)
+        key = jnp.where((at < runs)[:, None], layer[run], -1).reshape(-1)
         rows_of = table[jnp.bitwise_and(key, 2**face_bits - 1)].T
+        pixel = (run[:, None] * _SHADE_RUN + lane).reshape(-1)
         x = (pixel % cols).astype(table.dtype)
         y = (pixel // cols).astype(table.dtype)
-        return _shade(renderer, rows_of, key >= 0, x, y, colour[pixel])
+        below = under[run].reshape(-1, 4) if under.ndim == 3 else under
+        shaded = _shade(renderer, rows_of, key >= 0, x, y, below)
+        if finish is not None:
+            shaded = finish(shaded)
+        return shaded.reshape(chunk, _SHADE_RUN, 4)
 
     def shaded_by(steps):
-        """`colour` with the listed pixels shaded by a loop of `steps` chunks."""
+        """The picture with the listed runs shaded by a loop of `steps` chunks."""
+        def filled():
+            return jnp.broadcast_to(fill, (runs, _SHADE_RUN, 4))
+
         if steps == 0:
-            return lambda: colour
+            return filled
 
         def run():
-            position = jax.lax.associative_scan(jnp.add, drawn.astype(jnp.int32))
-            listed = jnp.full(steps * _SHADE_CHUNK, pixels, jnp.int32).at[
-                jnp.where(drawn, position - 1, steps * _SHADE_CHUNK)].set(
-                jnp.arange(pixels, dtype=jnp.int32), mode="drop")
+            position = jnp.cumsum(drawn.astype(jnp.int32))
+            listed = jnp.full(steps * chunk, runs, jnp.int32).at[
+                jnp.where(drawn, position - 1, steps * chunk)].set(
+                jnp.arange(runs, dtype=jnp.int32), mode="drop")
 
             def step(carry, index):
-                skip = lambda i: jnp.zeros((_SHADE_CHUNK, 4), colour.dtype)  # noqa: E731
-                return carry, jax.lax.cond(index * _SHADE_CHUNK < count,
+                skip = lambda i: jnp.zeros((chunk, _SHADE_RUN, 4), fill.dtype)  # noqa: E731
+                return carry, jax.lax.cond(index * chunk < count,
                                            functools.partial(shade, listed), skip, index)
 
-            # Each step's pixels come out as its own rows, written once at the end: a
-            # colour buffer carried through the loop would be copied at every step.
+            # Each step's runs come out as its own rows, written once at the end: a
+            # picture carried through the loop would be copied at every step.
             _, shaded = jax.lax.scan(step, None, jnp.arange(steps))
-            return colour.at[listed].set(shaded.reshape(-1, 4), mode="drop")
+            return filled().at[listed].set(shaded.reshape(-1, _SHADE_RUN, 4), mode="drop")
         return run
 
-    ladder = _shade_steps(pixels)
-    needed = (count + _SHADE_CHUNK - 1) // _SHADE_CHUNK
+    ladder = _shade_steps(runs * _SHADE_RUN)
+    needed = (count + chunk - 1) // chunk
     branch = jnp.searchsorted(jnp.asarray(ladder), needed)
-    return jax.lax.switch(branch, [shaded_by(steps) for steps in ladder])
+    shaded = jax.lax.switch(branch, [shaded_by(steps) for steps in ladder])
+    return shaded.reshape(-1, 4)[:pixels]
 
 
 def _shade_steps(pixels: int) -> tuple[int, ...]:
@@ -1046,7 +1085,7 @@ def _premultiply(rgba):
 
 def _shade(renderer: Renderer, table, drawn, x, y, under):
     """Pixels drawn by the triangles whose `table` columns are given (`(17, p)`), over the
-    premultiplied `under` (`(p, 4)`), where `drawn`."""
+    premultiplied `under` (`(p, 4)`, or `(4,)` under all), where `drawn`."""
     dx, dy = x - table[4], y - table[5]
     u = table[0] * dx + table[1] * dy + table[6]
     v = table[2] * dx + table[3] * dy + table[7]

@@ -255,6 +255,7 @@ def test_shading_only_the_drawn_pixels_equals_shading_every_pixel(renderer256, r
         _shade,
         _shade_steps,
         _shade_where,
+        _straight,
         _to_pixels,
     )
 
@@ -268,15 +269,27 @@ def test_shading_only_the_drawn_pixels_equals_shading_every_pixel(renderer256, r
     rng = np.random.default_rng(0)
     layer = np.where(rng.random(rows * cols) < share,
                      rng.integers(0, faces.shape[0], rows * cols), -1).astype(np.int32)
-    under = jnp.asarray(rng.random((rows * cols, 4)), table.dtype)
-    listed = jax.jit(lambda keys, c: _shade_where(renderer, table, keys, face_bits, cols, c))(
-        jnp.asarray(layer), under)
+    # What lies under a drawn pixel varies; elsewhere it is the picture's fill, as in a
+    # frame, where only drawn pixels have anything but the background under them.
+    fill = jnp.asarray([0.2, 0.3, 0.4, 0.5], table.dtype)
+    under = jnp.where(jnp.asarray(layer >= 0)[:, None],
+                      jnp.asarray(rng.random((rows * cols, 4)), table.dtype), fill)
     pixel = np.arange(rows * cols)
     every = _shade(renderer, table[np.maximum(layer, 0)].T, jnp.asarray(layer >= 0),
                    jnp.asarray(pixel % cols, table.dtype), jnp.asarray(pixel // cols, table.dtype),
                    under)
-    expected = np.where((layer >= 0)[:, None], np.asarray(every), np.asarray(under))
-    np.testing.assert_allclose(np.asarray(listed), expected, atol=ROUNDING)
+    for below, finish in [(under, None), (fill, None), (under, _straight)]:
+        listed = jax.jit(lambda keys, c, finish=finish: _shade_where(
+            renderer, table, keys, face_bits, cols, c, fill if finish is None else finish(fill),
+            finish=finish))(
+            jnp.asarray(layer), below)
+        shaded = every if below.ndim == 2 else _shade(
+            renderer, table[np.maximum(layer, 0)].T, jnp.asarray(layer >= 0),
+            jnp.asarray(pixel % cols, table.dtype), jnp.asarray(pixel // cols, table.dtype), fill)
+        expected = np.where((layer >= 0)[:, None], np.asarray(shaded), np.asarray(fill))
+        if finish is not None:
+            expected = np.asarray(finish(expected))
+        np.testing.assert_allclose(np.asarray(listed), expected, atol=ROUNDING)
 
 
 @pytest.mark.float64
