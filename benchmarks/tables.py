@@ -289,7 +289,12 @@ def render_table(data: dict, source: str) -> str:
         targets.append(f"`jax.vmap(renderer)` as fast as `Renderer.frames` (at least "
                        f"{meta['target_vmap_over_map']:g} times its throughput, the runs' "
                        f"noise): {_met(meta['vmap_target_met_everywhere'])} (worst "
-                       f"{_times(meta['vmap_over_map_worst'])})")
+                       f"{_times(meta['vmap_over_map_worst'])}"
+                       + (f", median {_times(meta['vmap_over_map_median'])}"
+                          if "vmap_over_map_median" in meta else "")
+                       + ("; the two compile to the same program at every size"
+                          if meta.get("vmap_same_program_as_map_everywhere") else "")
+                       + ")")
     lines = [_measured_on(data, source, f"medians of {meta.get('repeats')} calls"), "",
              *_table(head, rows)]
     if targets:

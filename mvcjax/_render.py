@@ -556,7 +556,11 @@ def _grown(window, vertices, shape: tuple[int, int]):
 
 
 def _draw_each(renderer: Renderer, vertices, window):
-    """Pictures of `(f, n, 2)` poses in `(f, 4)` windows, one after another."""
+    """Pictures of `(f, n, 2)` poses in `(f, 4)` windows (or all in one `(4,)` window),
+    one after another."""
+    if window.ndim == 1:
+        # One window for all: closed over, as a loop over the frames would have it.
+        return jax.lax.map(lambda v: _draw(renderer, v, window), vertices)
     return jax.lax.map(lambda vw: _draw(renderer, *vw), (vertices, window))
 
 
@@ -580,9 +584,7 @@ def _draw_frames(frames: int, in_batched, renderer: Renderer, vertices, window):
     (a stack, or a draw order per frame) is looped over with the poses."""
     if any(jax.tree.leaves(in_batched[0])):
         return one_after_another(_draw, in_batched, (renderer, vertices, window)), True
-    _, vertices_batched, window_batched = in_batched
-    if not window_batched:
-        window = jnp.broadcast_to(window, (frames, *window.shape))
+    _, vertices_batched, _ = in_batched
     if not vertices_batched:
         vertices = jnp.broadcast_to(vertices, (frames, *vertices.shape))
     return _draw_sequence(renderer, vertices, window), True
