@@ -621,9 +621,10 @@ def glyph_handles(shape: Shape, heights=(0.08, 0.5, 0.92), min_width: float = 4.
     """Pins on a glyph (or any shape) at fractions `heights` of its height.
 
     For each height, the horizontal line there is cut by the shape into pieces (every
-    stroke it crosses; pieces narrower than `min_width` are left out): a pin goes in the
-    middle of each piece, or, where the line crosses a single piece, two pins go at a
-    quarter and three quarters of it, so that every height holds its direction (an L's
+    stroke it crosses; pieces narrower than `min_width`, in the shape's units, are left
+    out): a pin goes in the middle of each piece, or, where the line crosses a single
+    piece, two pins go at a quarter and three quarters of it, so that every height holds
+    its direction (an L's
     stem, an A's apex). Returns a tuple of `(k, 2)` arrays, one per height (bottom,
     middle and top by default); `np.concatenate` them for `Rig.build`.
     """
@@ -639,4 +640,10 @@ def glyph_handles(shape: Shape, heights=(0.08, 0.5, 0.92), min_width: float = 4.
         at = (0.25, 0.75) if len(pieces) == 1 else (0.5,)
         pins.append(np.array([g.interpolate(f, normalized=True).coords[0] for g in pieces
                               for f in at], np.float64).reshape(-1, 2))
+    if not any(len(p) for p in pins):
+        raise ValueError(
+            f"glyph_handles: no stroke at heights {tuple(heights)} is min_width={min_width:g} "
+            f"wide or wider: the shape is {x1 - x0:.3g} wide and {y1 - y0:.3g} tall, and "
+            f"min_width is in the shape's own units. Pass a smaller one for a small shape, "
+            f"e.g. min_width={0.025 * (y1 - y0):.3g}.")
     return tuple(pins)

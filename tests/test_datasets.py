@@ -233,6 +233,17 @@ def test_glyph_shape_and_pins(letter):
     assert shapely.contains(shape.polygon, shapely.points(pins)).all()
 
 
+def test_glyph_handles_on_a_small_glyph_say_min_width_is_in_its_units():
+    shape = datasets.glyph("R")
+    small = mvcjax.Shape.from_polygon(np.asarray(shape.outer) * 1e-3,
+                                      [np.asarray(h) * 1e-3 for h in shape.holes])
+    with pytest.raises(ValueError, match="min_width is in the shape's own units"):
+        datasets.glyph_handles(small)
+    scaled = np.concatenate(datasets.glyph_handles(small, min_width=4e-3))
+    np.testing.assert_allclose(scaled, np.concatenate(datasets.glyph_handles(shape)) * 1e-3,
+                               rtol=1e-9, atol=1e-12)
+
+
 def test_glyph_rig_builds_and_font_path():
     from matplotlib import font_manager
 
