@@ -971,7 +971,7 @@ def _draw(renderer: Renderer, vertices, window):
     face_bits, layers = _raster(renderer, jax.lax.stop_gradient(tri), rows, cols)
     table = materialise(_face_table(tri, renderer.texture_points[faces], renderer.boundary))
     background = _premultiply(renderer.background)
-    colour = background
+    under = background
     front = layers[0]
     if renderer.antialias:
         # The layer beneath shows only where the front triangle covers a pixel partly
@@ -981,12 +981,12 @@ def _draw(renderer: Renderer, vertices, window):
         if renderer.see_through:
             partial = jnp.ones_like(partial)
         beneath = jnp.where(partial, layers[1], -1)
-        colour = _shade_where(renderer, table, beneath, face_bits, cols, background,
-                              background)
+        under = _shade_where(renderer, table, beneath, face_bits, cols, background,
+                             background)
     # The front layer is the last: its pixels are written straight (not premultiplied)
     # into a picture of the straight background, so that no pass over the whole picture
     # is left to do.
-    colour = _shade_where(renderer, table, front, face_bits, cols, colour,
+    colour = _shade_where(renderer, table, front, face_bits, cols, under,
                           _straight(background), finish=_straight)
     return colour.reshape(rows, cols, 4)
 
@@ -1017,9 +1017,12 @@ def _shade_where(renderer: Renderer, table, layer, face_bits: int, cols: int, un
     pixels = layer.shape[0]
     runs = -(-pixels // _SHADE_RUN)
     padding = runs * _SHADE_RUN - pixels
-    in_runs = lambda a, fill: jnp.pad(a, [(0, padding)] + [(0, 0)] * (a.ndim - 1),  # noqa: E731
-                                      constant_values=fill).reshape(runs, _SHADE_RUN,
-                                                                    *a.shape[1:])
+
+    def in_runs(a, value):
+        """`(pixels, ...)` as `(runs, _SHADE_RUN, ...)`, the last run padded with `value`."""
+        padded = jnp.pad(a, [(0, padding)] + [(0, 0)] * (a.ndim - 1), constant_values=value)
+        return padded.reshape(runs, _SHADE_RUN, *a.shape[1:])
+
     layer = in_runs(layer, -1)
     if under.ndim == 2:
         under = in_runs(under, 0)

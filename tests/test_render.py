@@ -245,10 +245,13 @@ def renderer256(rig, picture):
 
 
 @pytest.mark.parametrize("share", [0.0, 1e-4, 0.1, 0.2, 0.6, 0.95])
-def test_shading_only_the_drawn_pixels_equals_shading_every_pixel(renderer256, rig, share):
-    # The shading lists the drawn pixels and takes a loop of one of a few lengths (here
-    # none, 1, 4 or 8 chunks: these shares take each), which must all give what
-    # shading every pixel and keeping the drawn ones gives.
+@pytest.mark.parametrize("size", [(256, 256), (45, 61)])
+def test_shading_only_the_drawn_pixels_equals_shading_every_pixel(renderer256, rig, picture,
+                                                                   share, size):
+    # The shading lists the drawn pixels' runs and takes a loop of one of a few lengths
+    # (at 256 x 256 none, 1, 4 or 8 chunks: these shares take each), which must all
+    # give what shading every pixel and keeping the drawn ones gives; at 45 x 61 the
+    # last run is padded.
     from mvcjax._render import (
         _face_table,
         _key_layout,
@@ -259,9 +262,11 @@ def test_shading_only_the_drawn_pixels_equals_shading_every_pixel(renderer256, r
         _to_pixels,
     )
 
-    renderer = renderer256
+    renderer = renderer256 if size == (256, 256) else mvcjax.Renderer.build(rig, picture,
+                                                                           size=size)
     rows, cols = renderer.shape
-    assert _shade_steps(rows * cols) == (0, 1, 4, 8)
+    if size == (256, 256):
+        assert _shade_steps(rows * cols) == (0, 1, 4, 8)
     faces = renderer.faces
     tri = _to_pixels(rig.shape_mesh.vertices, renderer.window, rows, cols)[faces]
     table = _face_table(tri, renderer.texture_points[faces], renderer.boundary)
@@ -275,20 +280,21 @@ def test_shading_only_the_drawn_pixels_equals_shading_every_pixel(renderer256, r
     under = jnp.where(jnp.asarray(layer >= 0)[:, None],
                       jnp.asarray(rng.random((rows * cols, 4)), table.dtype), fill)
     pixel = np.arange(rows * cols)
-    every = _shade(renderer, table[np.maximum(layer, 0)].T, jnp.asarray(layer >= 0),
-                   jnp.asarray(pixel % cols, table.dtype), jnp.asarray(pixel // cols, table.dtype),
-                   under)
+
+    def every_pixel(below):
+        return np.asarray(_shade(renderer, table[np.maximum(layer, 0)].T,
+                                 jnp.asarray(layer >= 0), jnp.asarray(pixel % cols, table.dtype),
+                                 jnp.asarray(pixel // cols, table.dtype), below))
+
     for below, finish in [(under, None), (fill, None), (under, _straight)]:
-        listed = jax.jit(lambda keys, c, finish=finish: _shade_where(
-            renderer, table, keys, face_bits, cols, c, fill if finish is None else finish(fill),
-            finish=finish))(
+        picture_fill = fill if finish is None else finish(fill)
+        listed = jax.jit(lambda keys, c, finish=finish, picture_fill=picture_fill: _shade_where(
+            renderer, table, keys, face_bits, cols, c, picture_fill, finish=finish))(
             jnp.asarray(layer), below)
-        shaded = every if below.ndim == 2 else _shade(
-            renderer, table[np.maximum(layer, 0)].T, jnp.asarray(layer >= 0),
-            jnp.asarray(pixel % cols, table.dtype), jnp.asarray(pixel // cols, table.dtype), fill)
-        expected = np.where((layer >= 0)[:, None], np.asarray(shaded), np.asarray(fill))
+        expected = np.where((layer >= 0)[:, None], every_pixel(below), np.asarray(fill))
         if finish is not None:
             expected = np.asarray(finish(expected))
+        assert listed.shape == (rows * cols, 4)
         np.testing.assert_allclose(np.asarray(listed), expected, atol=ROUNDING)
 
 
