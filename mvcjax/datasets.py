@@ -624,9 +624,9 @@ def glyph_handles(shape: Shape, heights=(0.08, 0.5, 0.92), min_width: float = 4.
     stroke it crosses; pieces narrower than `min_width`, in the shape's units, are left
     out): a pin goes in the middle of each piece, or, where the line crosses a single
     piece, two pins go at a quarter and three quarters of it, so that every height holds
-    its direction (an L's
-    stem, an A's apex). Returns a tuple of `(k, 2)` arrays, one per height (bottom,
-    middle and top by default); `np.concatenate` them for `Rig.build`.
+    its direction (an L's stem, an A's apex). Returns a tuple of `(k, 2)` arrays, one
+    per height (bottom, middle and top by default); `np.concatenate` them for
+    `Rig.build`.
     """
     x0, y0, x1, y1 = shape.bounds
     pins = []
