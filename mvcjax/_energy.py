@@ -6,10 +6,10 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Complex, Float, Int
 
 from ._checks import as_array, kind_of
-from ._stencils import EDGE, LAPLACIAN, Stencil, length_scale
+from ._stencils import EDGE, LAPLACIAN, Stencil, length_scale, turn_rest
 
 
 def _safe_normalise(v: Float[Array, "m 2"]) -> Float[Array, "m 2"]:
@@ -32,6 +32,8 @@ def _weight(name: str):
     """The converter of the weight `name`: a number to an array, anything else refused
     by name (JAX's own error speaks of dtypes)."""
     def convert(value):
+        if value is None and name == "arap":
+            return None  # the term not asked for
         if not isinstance(value, jax.Array):
             host = as_array(value, f"Weights({name}=...)", "a number")
             if host.dtype.kind not in "iuf":
@@ -45,7 +47,8 @@ def _weight(name: str):
 
 
 class Weights(eqx.Module):
-    """Weights of the four terms of the energy (6), each multiplying a squared norm.
+    """Weights of the four terms of the energy (6), and of the as-rigid-as-possible
+    term where it is asked for, each multiplying a squared norm.
 
     The paper leaves all four at 1. The handle rows are then a handful among hundreds
     of L, M and H rows, which pull the handles back: a dragged handle stops visibly
@@ -59,6 +62,11 @@ class Weights(eqx.Module):
         mvc: weight of `|M V|^2` (inner vertices stay at their mean value position).
         length: weight of `|H V - e(V)|^2` (edge lengths, local rigidity).
         handle: weight of `|C V - U|^2` (how hard the handles pull).
+        arap: weight of the as-rigid-as-possible term on the control triangles,
+            `sum_t area_t |J_t - R_t|^2` (`as_rigid_as_possible`: each triangle's
+            deformation gradient against the rotation nearest to it), or None (the
+            default: no such term, the paper's energy). Its presence shapes the
+            compiled programs; its value, like every weight's, does not.
 
     Only the ratios between the weights matter: the solvers and factors use the weights
     scaled to a fixed largest value (`normalised`), so `Weights(1e-30, 1e-30, 1e-30,
@@ -68,9 +76,13 @@ class Weights(eqx.Module):
     alone): where it leaves vertices free, a zero Laplacian or mean value weight is
     raised to a small share of the largest shape weight to decide them (`tie_broken`).
 
+    `laplacian`, `mvc` and `length` all zero leave the shape to `arap`
+    (`Weights(0, 0, 0, arap=1)`: the as-rigid-as-possible energy alone) or to the terms
+    added by `Rig.with_terms`; a rig without either refuses them (`check_shape_held`).
+
     Refused (ValueError where the weights are made; TypeError for a weight that is not
-    a number): a weight that is not a finite real number >= 0; `handle` zero;
-    `laplacian`, `mvc` and `length` all zero; two positive weights more than
+    a number): a weight that is not a finite real number >= 0; `handle` zero; two
+    positive weights more than
     `MAX_WEIGHT_RATIO` (1e8) apart; a positive weight outside `WEIGHT_RANGE` (1e-36 to
     1e36, float32's range). Traced weights (under `jit` or `grad`) are checked when the
     program runs, by `Rig.with_weights` (`verified`). Something other than a `Weights`
@@ -81,9 +93,15 @@ class Weights(eqx.Module):
     mvc: Float[Array, ""] = eqx.field(default=1.0, converter=_weight("mvc"))
     length: Float[Array, ""] = eqx.field(default=1.0, converter=_weight("length"))
     handle: Float[Array, ""] = eqx.field(default=100.0, converter=_weight("handle"))
+    arap: Float[Array, ""] | None = eqx.field(default=None, converter=_weight("arap"))
+
+    def _values(self) -> dict[str, Array]:
+        """The weights given, by name (`arap` only where the term is asked for)."""
+        names = ("laplacian", "mvc", "length", "handle", "arap")
+        return {k: getattr(self, k) for k in names if getattr(self, k) is not None}
 
     def __check_init__(self):
-        values = {k: getattr(self, k) for k in ("laplacian", "mvc", "length", "handle")}
+        values = self._values()
         if any(isinstance(v, jax.core.Tracer) for v in values.values()):
             return  # traced (under jit or grad): checked where the weights were made
         for name, value in values.items():
@@ -97,12 +115,6 @@ class Weights(eqx.Module):
             raise ValueError(
                 "Weights(handle=0) leaves the control mesh free to drift (the energy has no "
                 "unique minimum); give the handles a positive weight."
-            )
-        if max(v["laplacian"], v["mvc"], v["length"]) <= 0:
-            raise ValueError(
-                "Weights(laplacian=0, mvc=0, length=0) leaves only the handles: every other "
-                "control vertex is free, so the energy has no unique minimum; give at least "
-                "one shape term a positive weight."
             )
         positive = {k: x for k, x in v.items() if x > 0}
         for name, x in positive.items():
@@ -125,16 +137,17 @@ class Weights(eqx.Module):
                 "positive)."
             )
 
-    def verified(self) -> Weights:
+    def verified(self, held_by_others: bool = False) -> Weights:
         """The weights, checked when they are used where they are traced (under `jit`
         or `grad`, where `Weights(...)` cannot look at them): a NaN, an infinite or a
-        negative weight, a zero handle weight or all shape terms at zero then raise
-        when the program runs, instead of giving NaN vertices."""
-        values = (self.laplacian, self.mvc, self.length, self.handle)
+        negative weight, a zero handle weight or all shape terms at zero (unless
+        `held_by_others`: other terms hold the shape) then raise when the program runs,
+        instead of giving NaN vertices."""
+        values = tuple(self._values().values())
         if not any(isinstance(v, jax.core.Tracer) for v in values):
             return self
         bad = (~jnp.all(jnp.isfinite(jnp.stack(values))) | (jnp.min(jnp.stack(values)) < 0)
-               | (self.handle <= 0) | (self.largest_shape() <= 0))
+               | (self.handle <= 0) | ((self.holding() <= 0) & (not held_by_others)))
         return jax.tree.map(lambda w: eqx.error_if(
             w, bad, "Weights given under jit or grad must be finite numbers >= 0, with a "
             "positive handle weight and at least one positive shape term (laplacian, mvc or "
@@ -145,8 +158,7 @@ class Weights(eqx.Module):
         return jax.tree.map(lambda w: jnp.asarray(w, dtype), self)
 
     def largest(self) -> Float[Array, ""]:
-        return jnp.maximum(jnp.maximum(self.laplacian, self.mvc),
-                           jnp.maximum(self.length, self.handle))
+        return jnp.max(jnp.stack(list(self._values().values())))
 
     def normalised(self) -> Weights:
         """The weights scaled so that the largest is `NORMAL_WEIGHT` (the default handle
@@ -158,6 +170,11 @@ class Weights(eqx.Module):
     def largest_shape(self) -> Float[Array, ""]:
         """The largest of the Laplacian, mean value and edge-length weights."""
         return jnp.maximum(jnp.maximum(self.laplacian, self.mvc), self.length)
+
+    def holding(self) -> Float[Array, ""]:
+        """The largest weight of a term that holds the shape (all but the handles')."""
+        return self.largest_shape() if self.arap is None else jnp.maximum(
+            self.largest_shape(), self.arap)
 
     def tie_broken(self) -> Weights:
         """The weights with a Laplacian or mean value weight of zero raised to
@@ -188,15 +205,37 @@ def check_weights(weights, name: str = "weights") -> Weights:
     raise TypeError(f"{name} must be an mvcjax.Weights, got {got}; write {fix}.")
 
 
+def check_shape_held(energy: Energy) -> Energy:
+    """`energy` itself if a term other than the handles holds the shape: a positive
+    Laplacian, mean value or edge-length weight, or a further term (`Energy.extra`).
+    Otherwise every control vertex but the handles' is free and the energy has no
+    unique minimum: a ValueError that says so. Traced weights pass (`verified` checks
+    them when the program runs)."""
+    traced = any(isinstance(w, jax.core.Tracer) for w in jax.tree.leaves(energy.weights))
+    if energy.extra or traced:
+        return energy
+    if float(energy.weights.holding()) > 0:
+        return energy
+    raise ValueError(
+        "Weights(laplacian=0, mvc=0, length=0) leaves only the handles: every other "
+        "control vertex is free, so the energy has no unique minimum; give at least one "
+        "shape term a positive weight (the as-rigid-as-possible term's, Weights(arap=1.0), "
+        "among them), or add a term that holds the shape (Rig.with_terms)."
+    )
+
+
 class Term(eqx.Module):
     """One term of the energy (6), declared as data: `weight * |D V - target(V)|^2`.
 
     Its rows `D` are a stencil (each row a few vertex indices and coefficients), and
-    its target is one of three kinds, which is all a solver needs to know:
+    its target is one of four kinds, which is all a solver needs to know:
 
     - `Term.turned`: each row's current vector turned to its rest length `length`, a
       rotation the local step of the fixed-G iteration recomputes (the Laplacian L
       and the edge lengths H);
+    - `Term.rotated`: each row's rest vector `rest` turned by a rotation that a group
+      of rows shares, fitted to the group's current vectors in the local step (the
+      as-rigid-as-possible term, `as_rigid_as_possible`: a rotation per triangle);
     - `Term.linear`: zero, a constant linear term (the mean value rows M);
     - `Term.pinned`: the handle targets `U`, one row each (the handles C).
 
@@ -209,6 +248,9 @@ class Term(eqx.Module):
         stencil: its rows.
         weight: its weight (a scalar).
         length: `(m,)` the rows' rest lengths (`turned` terms; None otherwise).
+        rest: `(m, 2)` the rows' rest vectors (`rotated` terms; None otherwise).
+        group: `(m,)` the rotation each row shares (`rotated` terms: an index below
+            `m`, the rows of a group turning together; None otherwise).
         pinned: whether its rows are measured from the handle targets.
     """
 
@@ -216,6 +258,8 @@ class Term(eqx.Module):
     stencil: Stencil
     weight: Float[Array, ""]
     length: Float[Array, " m"] | None = None
+    rest: Float[Array, "m 2"] | None = None
+    group: Int[Array, " m"] | None = None
     pinned: bool = eqx.field(default=False, static=True)
 
     @classmethod
@@ -230,6 +274,11 @@ class Term(eqx.Module):
                           jnp.linalg.norm(stencil.vectors(rest), axis=1))
 
     @classmethod
+    def rotated(cls, name: str, stencil: Stencil, weight, rest: Float[Array, "m 2"],
+                group: Int[Array, " m"]) -> Term:
+        return cls(name, stencil, jnp.asarray(weight), rest=rest, group=group)
+
+    @classmethod
     def linear(cls, name: str, stencil: Stencil, weight) -> Term:
         return cls(name, stencil, jnp.asarray(weight))
 
@@ -241,13 +290,65 @@ class Term(eqx.Module):
     def count(self) -> int:
         return self.stencil.count
 
+    @property
+    def is_local(self) -> bool:
+        """Whether the local step turns its targets (a turned or rotated term)."""
+        return self.length is not None or self.rest is not None
+
+    def local_rest(self) -> Complex[Array, " m"]:
+        """A local term's rest vectors as complex numbers (a turned row's: its rest
+        length, whose direction does not matter)."""
+        if self.rest is not None:
+            return jax.lax.complex(self.rest[:, 0], self.rest[:, 1])
+        return self.length.astype(jnp.result_type(self.length, jnp.complex64))
+
+    def local_group(self) -> Int[Array, " m"]:
+        """A local term's groups (a turned row is a group of its own)."""
+        return self.group if self.group is not None else jnp.arange(self.count)
+
     def residual(self, vertices: Float[Array, "n 2"], targets: Float[Array, "h 2"] | None
                  ) -> Float[Array, "m 2"]:
         """`D V - target(V)`, unweighted."""
         v = self.stencil.vectors(vertices)
+        if self.rest is not None:
+            t = turn_rest(jax.lax.complex(v[:, 0], v[:, 1]), self.local_rest(), self.group)
+            return v - jnp.stack([jnp.real(t), jnp.imag(t)], axis=1)
         if self.length is not None:
             return v - self.length[:, None] * _safe_normalise(v)
         return v - targets if self.pinned else v
+
+
+def as_rigid_as_possible(rest: Float[Array, "n 2"], faces: Int[Array, "f 3"], weight
+                         ) -> Term:
+    """The as-rigid-as-possible energy of a triangle mesh, a rotation per triangle:
+    `weight * sum_t area_t |J_t - R_t|_F^2`, `J_t` the triangle's deformation gradient
+    from its rest shape and `R_t` the rotation nearest to it (the local step's fit).
+
+    It equals the cotangent-weighted sum over each triangle's edges of
+    `|e - R_t e_rest|^2 / 2` that libigl's `arap` minimises (its "elements" energy),
+    with only non-negative weights: each triangle gives two rows, the columns of `J_t`
+    times `sqrt(area_t)`, whose rest vectors are the unit axes times `sqrt(area_t)`.
+    Degenerate or inverted rest triangles (zero area: a stack's padding) give zero rows.
+    Pure JAX, so it is derived inside `jit` from the rest mesh.
+    """
+    corners = rest[faces]  # (f, 3, 2)
+    e1, e2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    double_area = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    valid = double_area > 0
+    safe = jnp.where(valid, double_area, 1.0)
+    # Gradients of the barycentric coordinates of corners 1 and 2 (rows of the inverse
+    # of the rest edge matrix); corner 0's is minus their sum.
+    g1 = jnp.stack([e2[:, 1], -e2[:, 0]], axis=1) / safe[:, None]
+    g2 = jnp.stack([-e1[:, 1], e1[:, 0]], axis=1) / safe[:, None]
+    gradients = jnp.stack([-(g1 + g2), g1, g2], axis=1)  # (f, 3 corners, 2 axes)
+    root_area = jnp.where(valid, jnp.sqrt(0.5 * safe), 0.0)
+    # Row (t, a): column a of J_t, sum_i v_i (grad phi_i)_a, times sqrt(area_t).
+    coef = jnp.transpose(gradients, (0, 2, 1)) * root_area[:, None, None]  # (f, 2, 3)
+    rows = jnp.broadcast_to(faces[:, None, :], coef.shape)
+    axes = jnp.eye(2, dtype=rest.dtype)[None] * root_area[:, None, None]  # (f, 2, 2)
+    count = faces.shape[0]
+    return Term.rotated("arap", Stencil(rows.reshape(-1, 3), coef.reshape(-1, 3)), weight,
+                        axes.reshape(-1, 2), jnp.repeat(jnp.arange(count), 2))
 
 
 class Energy(eqx.Module):
@@ -295,7 +396,8 @@ class Energy(eqx.Module):
         return self.rest.shape[0]
 
     def terms(self, normalised: bool = False) -> tuple[Term, ...]:
-        """The energy's terms, in its order: L, M, H, C (eq. 7), then any `extra`.
+        """The energy's terms, in its order: L, M, H (eq. 7), the as-rigid-as-possible
+        term where its weight is given (`Weights.arap`), C, then any `extra`.
 
         With `normalised`, the weights are those the solvers use
         (`Weights.normalised`), the extra terms' scaled alike: the same minimisers.
@@ -312,6 +414,7 @@ class Energy(eqx.Module):
             Term.linear("mvc", mvc, w.mvc),
             Term.turned("length", Stencil.fixed(self.edges, EDGE, dtype), w.length,
                         self.edge_length),
+            *(() if w.arap is None else (as_rigid_as_possible(self.rest, self.faces, w.arap),)),
             Term.pinned_to_targets("handle", self.handle_stencil(), w.handle),
             *(eqx.tree_at(lambda t: t.weight, t, t.weight * factor) for t in self.extra),
         )

@@ -36,6 +36,7 @@ from ._stencils import (
     apply_stencils_transpose,
     length_scale,
     transpose_table,
+    turn_rest,
 )
 from ._xla import to_device
 
@@ -80,20 +81,35 @@ def sparse_operators(energy: Energy) -> tuple[scipy.sparse.csr_matrix, ...]:
 
 def _local_rows(
     energy: Energy,
-) -> tuple[Int[Array, "m 3"], Float[Array, "m 3"], Float[Array, " m"]]:
-    """The rows of every turned term (the Laplacian and edge rows) merged, so that the
-    local step is one gather: row `r` is `y_r = sum_k coef[r, k] V[rows[r, k]]`, its
-    target `length[r] y_r / |y_r|`."""
-    turned = [t for t in energy.terms() if t.length is not None]
-    merged = Stencil.concatenate(*(t.stencil for t in turned))
-    return merged.rows, merged.coef, jnp.concatenate([t.length for t in turned])
+) -> tuple[Int[Array, "m 3"], Float[Array, "m 3"], Complex[Array, " m"], Int[Array, " m"] | None]:
+    """The rows of every local term (the Laplacian and edge rows, and any rotated term)
+    merged, so that the local step is one gather: row `r` is
+    `y_r = sum_k coef[r, k] V[rows[r, k]]`, its target its rest vector turned by its
+    group's rotation (`turn_rest`). The groups are None where every row is a group of
+    its own (only turned terms: the paper's energy)."""
+    local = [t for t in energy.terms() if t.is_local]
+    merged = Stencil.concatenate(*(t.stencil for t in local))
+    rest = jnp.concatenate([t.local_rest() for t in local])
+    if all(t.group is None for t in local):
+        return merged.rows, merged.coef, rest, None
+    offsets = np.cumsum([0, *(t.count for t in local)])
+    group = jnp.concatenate([t.local_group() + o for t, o in zip(local, offsets)])
+    return merged.rows, merged.coef, rest, group
+
+
+def _local_fields(energy: Energy) -> dict[str, Array | None]:
+    """A factor's local-step fields (`AbstractFactor`): rows, coefficients, rest
+    lengths, and the rest vectors and groups where some term is rotated."""
+    rows, coef, rest, group = _local_rows(energy)
+    return dict(rows=rows, coef=coef, length=jnp.abs(rest).astype(energy.rest.dtype),
+                rotation=None if group is None else rest, group=group)
 
 
 @jax.jit
 def _local_stencil(energy: Energy) -> tuple[Int[Array, "m 3"], Float[Array, "m 3"]]:
     # One compiled call (cached by shapes) instead of dozens of eager small ones, each
     # compiled anew for a rig of new sizes.
-    rows, coef, _ = _local_rows(energy)
+    rows, coef, _, _ = _local_rows(energy)
     return rows, coef
 
 
@@ -101,7 +117,7 @@ def _local_row_weights(energy: Energy) -> Float[Array, " m"]:
     """The weight of each merged turned row (its term's), in `_local_rows`' order."""
     return jnp.concatenate([
         jnp.broadcast_to(t.weight, (t.count,)) for t in energy.terms(normalised=True)
-        if t.length is not None]).astype(energy.rest.dtype)
+        if t.is_local]).astype(energy.rest.dtype)
 
 
 class StepData(eqx.Module):
@@ -126,9 +142,11 @@ class StepData(eqx.Module):
 class AbstractFactor(eqx.Module):
     """The global step, precomputed for one set of weights.
 
-    The local-step data is shared: the merged Laplacian and edge rows (`rows`, `coef`)
-    and their rest lengths (`length`), and the rest mesh (`rest`) and the rows of `C`
-    (`handle_rows`, `handle_coef`), which steps are taken relative to (`StepData`).
+    The local-step data is shared: the merged Laplacian and edge rows, then any other
+    local term's (`rows`, `coef`), their rest lengths (`length`), and where a term is
+    rotated (its rows turn together, `Term.rotated`) their rest vectors (`rotation`) and
+    groups (`group`); and the rest mesh (`rest`) and the rows of `C` (`handle_rows`,
+    `handle_coef`), which steps are taken relative to (`StepData`).
 
     Steps take and return the vertices coordinate-major, as the rows `V^T` of shape
     `(2, n)`, the fixed-G loop's layout, and `(n, 2, f)` for many frames (why: "Vertex
@@ -141,11 +159,16 @@ class AbstractFactor(eqx.Module):
     rest: eqx.AbstractVar[Float[Array, "2 n"]]
     handle_rows: eqx.AbstractVar[Int[Array, "h j"]]
     handle_coef: eqx.AbstractVar[Float[Array, "h j"]]
+    rotation: eqx.AbstractVar[Complex[Array, " m"] | None]
+    group: eqx.AbstractVar[Int[Array, " m"] | None]
 
     def local_targets(self, columns: Float[Array, "2 n"]) -> Complex[Array, " m"]:
-        """`[delta(V); e(V)]`: each Laplacian and edge vector turned to its rest length."""
+        """`[delta(V); e(V); ...]`: each Laplacian and edge vector turned to its rest
+        length, each rotated row's rest vector turned by its group's rotation."""
         y = apply_stencils(self.rows, self.coef, columns)
-        return y * length_scale(jnp.real(y) ** 2 + jnp.imag(y) ** 2, self.length)
+        if self.group is None:
+            return y * length_scale(jnp.real(y) ** 2 + jnp.imag(y) ** 2, self.length)
+        return turn_rest(y, self.rotation, self.group)
 
     def target_shift(self, targets: Float[Array, "h 2"]) -> Float[Array, "2 h"]:
         """The handle targets less the handles' rest positions, coordinate-major."""
@@ -265,7 +288,8 @@ class DenseFactor(AbstractFactor):
             touch each vertex, padded with `rows.size` (`transpose_table`).
         spread_coef: `(n, d)` their coefficients times their row's weight (0 on
             padding): `A^T W b` for the local rows is a gather of `b` by `spread`.
-        rows, coef, length, rest, handle_rows, handle_coef: see `AbstractFactor`.
+        rows, coef, length, rest, handle_rows, handle_coef, rotation, group: see
+            `AbstractFactor`.
     """
 
     shape: Float[Array, "m n"]
@@ -280,6 +304,8 @@ class DenseFactor(AbstractFactor):
     rest: Float[Array, "2 n"]
     handle_rows: Int[Array, "h j"]
     handle_coef: Float[Array, "h j"]
+    rotation: Complex[Array, " m"] | None
+    group: Int[Array, " m"] | None
 
     def handle_part(self, targets):
         return StepData(self.local_targets(self.rest),
@@ -294,6 +320,9 @@ class DenseFactor(AbstractFactor):
         # docs' how-it-works page). The product is `N^{-1} (A^T W b)`, not `G b`:
         # `A^T W b` is a cheap gather (`spread`), and `N^{-1}` is `n x n` where `G` is
         # `n x m`, m near 2.3 n on the horse: fewer flops per frame.
+        if self.group is not None:  # rotated rows: each frame's step, vmapped
+            return super().step_frames(vertices, data)
+
         def local(coordinate):
             # One gather per stencil column: faster than one gather of all three
             # columns followed by a contraction.
@@ -345,20 +374,20 @@ def _dense_factor(energy: Energy, spread: Int[Array, "n d"]) -> DenseFactor:
     terms = energy.terms(normalised=True)
     ops = operators(energy)
     normal = sum(t.weight * op.T @ op for t, op in zip(terms, ops))
-    turned = [t.weight * op.T for t, op in zip(terms, ops) if t.length is not None]
+    turned = [t.weight * op.T for t, op in zip(terms, ops) if t.is_local]
     (handle,) = [t.weight * op.T for t, op in zip(terms, ops) if t.pinned]
     cho = jax.scipy.linalg.cho_factor(normal)
     g = jax.scipy.linalg.cho_solve(cho, jnp.concatenate([*turned, handle], axis=1))
     split = g.shape[1] - handle.shape[1]
-    rows, coef, rest_length = _local_rows(energy)
-    entries = (coef * _local_row_weights(energy)[:, None]).reshape(-1)
+    local = _local_fields(energy)
+    entries = (local["coef"] * _local_row_weights(energy)[:, None]).reshape(-1)
     return DenseFactor(
         shape=g[:, :split].T, handle=g[:, split:], normal=normal,
         normal_inverse=jax.scipy.linalg.cho_solve(
             cho, jnp.eye(normal.shape[0], dtype=normal.dtype)),
         spread=spread, spread_coef=jnp.append(entries, 0.0)[spread],
-        rows=rows, coef=coef, length=rest_length, rest=energy.rest.T, handle_rows=energy.handles,
-        handle_coef=energy.handle_coef,
+        rest=energy.rest.T, handle_rows=energy.handles, handle_coef=energy.handle_coef,
+        **local,
     )
 
 
@@ -411,7 +440,8 @@ class SparseFactor(AbstractFactor):
     """`N = A^T W A` factored once on the host; steps solve `N V = A^T W b(V)`.
 
     Attributes:
-        rows, coef, length, rest, handle_rows, handle_coef: see `AbstractFactor`.
+        rows, coef, length, rest, handle_rows, handle_coef, rotation, group: see
+            `AbstractFactor`.
         row_weight: `(m,)` the weight of each local row (Laplacian or length weight).
         normal_rows, normal_cols, normal_values: `N` as triplets, for the matrix-vector
             product that `custom_linear_solve` differentiates through.
@@ -432,6 +462,8 @@ class SparseFactor(AbstractFactor):
     handle_weight: Float[Array, ""]
     host_key: Int[Array, ""]
     host: _HostSolve = eqx.field(static=True)
+    rotation: Complex[Array, " m"] | None
+    group: Int[Array, " m"] | None
 
     def _multiply(self, x: Float[Array, "n 2"]) -> Float[Array, "n 2"]:
         return jax.ops.segment_sum(
@@ -471,8 +503,8 @@ class SparseFactor(AbstractFactor):
 
 @jax.jit
 def _sparse_local_rows(energy: Energy):
-    """The local step's rows, and the weight of each (its term's)."""
-    return (*_local_rows(energy), _local_row_weights(energy))
+    """The local step's fields, and the weight of each row (its term's)."""
+    return _local_fields(energy), _local_row_weights(energy)
 
 
 def sparse_factor(energy: Energy) -> SparseFactor:
@@ -488,13 +520,11 @@ def sparse_factor(energy: Energy) -> SparseFactor:
     (handle,) = [t for t in terms if t.pinned]
     normal = scipy.sparse.coo_matrix(normal)
     host = _HostSolve(normal.tocsc())
-    rows, coef, rest_length, row_weight = _sparse_local_rows(energy)
+    local, row_weight = _sparse_local_rows(energy)
     dtype = energy.rest.dtype
     as_int = lambda a: to_device(a, np.int32)  # noqa: E731
     return SparseFactor(
-        rows=rows,
-        coef=coef,
-        length=rest_length,
+        **local,
         row_weight=row_weight,
         normal_rows=as_int(normal.row),
         normal_cols=as_int(normal.col),

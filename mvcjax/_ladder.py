@@ -172,5 +172,5 @@ def cut_factor(padded: DenseFactor, twin_energy, energy) -> DenseFactor:
         spread=to_device(spread, np.int32), spread_coef=real_array(entries[spread]),
         rows=to_device(rows, np.int32), coef=real_array(coef),
         length=real_array(host["length"][real]), rest=real_array(np.asarray(energy.rest).T),
-        handle_rows=energy.handles, handle_coef=energy.handle_coef,
+        handle_rows=energy.handles, handle_coef=energy.handle_coef, rotation=None, group=None,
     )

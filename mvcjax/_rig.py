@@ -21,7 +21,7 @@ from ._checks import (
     whole_number,
 )
 from ._control import PaperControl, as_control
-from ._energy import Energy, Term, Weights, check_weights, total_energy
+from ._energy import Energy, Term, Weights, check_shape_held, check_weights, total_energy
 from ._factor import AbstractFactor, FactorBySize, as_factor_method
 from ._folds import inverted_count
 from ._handles import Handles, check_handles, make_handles, pin
@@ -354,9 +354,9 @@ class Rig(JittableModule):
         shape_vertices, shape_faces, shape_pinned = shape_mesh
         control_vertices, control_faces, loops, inner, control_pinned = control_mesh
         centre, scale = frame
-        energy = _energy_data(
+        energy = check_shape_held(_energy_data(
             control_vertices, control_faces, loops, inner, control_pinned, weights, dtype,
-        )
+        ))
         world = lambda v: _array(v * scale + centre, dtype)  # noqa: E731
         parts = dict(
             shape_mesh=ShapeMesh(world(shape_vertices), _ints(shape_faces), _ints(shape_pinned)),
@@ -451,8 +451,9 @@ class Rig(JittableModule):
         recompilation); a sparse factor is refactored on the host, outside `jit`. A rig
         built with a `SizeLadder` gets a twin with the new weights too (outside `jit`).
         """
-        weights = check_weights(weights).verified().astype(self.energy.rest.dtype)
-        energy = eqx.tree_at(lambda e: e.weights, self.energy, weights)
+        weights = check_weights(weights).verified(bool(self.energy.extra))
+        energy = check_shape_held(eqx.tree_at(lambda e: e.weights, self.energy,
+                                              weights.astype(self.energy.rest.dtype)))
         twin = padded_twin(self)
         if twin is None or _traced(weights):
             factor = self.factor.rebuild(energy)
@@ -487,7 +488,7 @@ class Rig(JittableModule):
                     f"miss their targets by up to {miss:.3g} of the shape's diagonal): give "
                     "a linear term coefficients that reproduce the rest mesh, or a turned "
                     "term the rows' rest lengths (Term.turned_from(..., rig.energy.rest)).")
-        energy = eqx.tree_at(lambda e: e.extra, self.energy, tuple(terms))
+        energy = check_shape_held(eqx.tree_at(lambda e: e.extra, self.energy, tuple(terms)))
         factor = self.factor.rebuild(energy)
         return eqx.tree_at(lambda r: (r.energy, r.factor), self, (energy, factor))
 

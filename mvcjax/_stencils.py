@@ -108,3 +108,29 @@ def length_scale(squared_length: Array, length: ArrayLike) -> Array:
     fixed-G step, the least-squares residuals and the many-frames iteration."""
     nonzero = squared_length > 0
     return jnp.where(nonzero, length * jax.lax.rsqrt(jnp.where(nonzero, squared_length, 1.0)), 0.0)
+
+
+def turn_rest(y: Complex[Array, " m"], rest: Complex[Array, " m"],
+              group: Int[Array, " m"] | None) -> Complex[Array, " m"]:
+    """The local step's targets: each row's rest vector `rest[r]` turned by the rotation
+    that best carries its group's rest vectors onto their current vectors `y` (the 2D
+    Procrustes fit, `u = S / |S|` with `S = sum_r y_r conj(rest_r)` over the group).
+
+    `group[r]` is the group of row `r` (any index below the row count; a row alone in
+    its group is turned along its own vector, to its rest length). `group=None` puts
+    every row in a group of its own: the turned rows of the Laplacian and edge terms,
+    whose targets keep only the rest vectors' lengths. A zero fit (a zero current or
+    rest vector) gives a zero target, with finite gradients.
+    """
+    if group is None:
+        length = jnp.abs(rest)
+        return y * length_scale(jnp.real(y) ** 2 + jnp.imag(y) ** 2, length)
+    fit = group_sum(y * jnp.conj(rest), group)
+    unit = fit * length_scale(jnp.real(fit) ** 2 + jnp.imag(fit) ** 2, 1.0)
+    return unit[group] * rest
+
+
+def group_sum(values: Array, group: Int[Array, " m"]) -> Array:
+    """The sum of `values` over each group (`values` along its first axis, one row per
+    row of `group`), indexed by group: `(m, ...)`, zero for an index no row is in."""
+    return jax.ops.segment_sum(values, group, num_segments=group.shape[0])

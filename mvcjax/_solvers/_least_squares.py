@@ -6,10 +6,17 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Complex, Float, Int
 
 from .._energy import NORMAL_WEIGHT, Energy, total_energy
-from .._stencils import Stencil, apply_stencils, apply_stencils_transpose, length_scale
+from .._stencils import (
+    Stencil,
+    apply_stencils,
+    apply_stencils_transpose,
+    group_sum,
+    length_scale,
+)
 from ._base import SolveInfo, converged_and_finite
 
 _JACOBIAN_LIMIT_BYTES = 2**30
@@ -53,8 +60,11 @@ class ScaledProblem(eqx.Module):
     Attributes:
         energy: the energy (6).
         targets: `(h, 2)` the handle targets.
-        rows, coef: `(m, k)` the turned terms' and the handles' stencils.
+        rows, coef: `(m, k)` the local terms' and the handles' stencils.
         length: `(m,)` their rest lengths, in scaled units (zero for the handles).
+        rotation: `(m,)` their rest vectors, in scaled units, where a term is rotated
+            (its rows turn together, `Term.rotated`); None otherwise.
+        group: `(m,)` the rotation each row shares, where `rotation` is given.
         offset: `(m,)` what each stencil is measured from (the handle targets, scaled).
         row_weight: `(m,)` the square root of each stencil's weight (`Weights.normalised`).
         linear_rows, linear_coef: `(g, k)` the linear terms' rows, their coefficients
@@ -70,6 +80,8 @@ class ScaledProblem(eqx.Module):
     row_weight: Float[Array, " m"]
     linear_rows: Int[Array, "g k"]
     linear_coef: Float[Array, "g k"]
+    rotation: Complex[Array, " m"] | None
+    group: Int[Array, " m"] | None
 
     def __init__(self, energy: Energy, targets: Float[Array, "h 2"]):
         self.energy = energy
@@ -80,12 +92,20 @@ class ScaledProblem(eqx.Module):
         dtype = energy.rest.dtype
         # The turned rows, then the handles' (turned to length zero, measured from the
         # targets), in one gather; the linear rows in another (their stencils are wider).
-        narrow = [t for t in terms if t.length is not None] + [t for t in terms if t.pinned]
+        narrow = [t for t in terms if t.is_local] + [t for t in terms if t.pinned]
         merged = Stencil.concatenate(*(t.stencil for t in narrow))
         self.rows, self.coef = merged.rows, merged.coef
-        self.length = jnp.concatenate([
-            t.length / energy.scale if t.length is not None else jnp.zeros(t.count, dtype)
-            for t in narrow]).astype(dtype)
+        rest = jnp.concatenate([
+            t.local_rest() / energy.scale if t.is_local else jnp.zeros(t.count, dtype)
+            for t in narrow])
+        self.length = jnp.abs(rest).astype(dtype)
+        self.rotation, self.group = None, None
+        if any(t.group is not None for t in narrow):
+            offsets = np.cumsum([0, *(t.count for t in narrow)])
+            self.rotation = rest
+            self.group = jnp.concatenate([
+                (t.local_group() if t.is_local else jnp.arange(t.count)) + o
+                for t, o in zip(narrow, offsets)])
         # A row that pins nothing (coefficients zero, target zero) is measured from zero
         # too, not from the centring's shift: its residual is then zero, not a constant
         # that would count in the tolerances.
@@ -97,7 +117,7 @@ class ScaledProblem(eqx.Module):
             jnp.broadcast_to(t.weight, (t.count,)) for t in narrow]).astype(dtype))
         linear = Stencil.concatenate(*(
             Stencil(t.stencil.rows, jnp.sqrt(t.weight).astype(dtype) * t.stencil.coef)
-            for t in terms if t.length is None and not t.pinned))
+            for t in terms if not t.is_local and not t.pinned))
         self.linear_rows, self.linear_coef = linear.rows, linear.coef
 
     def scaled(self, vertices: Float[Array, "n 2"]) -> Float[Array, "2 n"]:
@@ -127,14 +147,35 @@ class ScaledProblem(eqx.Module):
         # Every row's coefficients sum to zero (Laplacian, edge and mean value rows) or
         # one (handles, measured from the scaled targets), so the centring drops out.
         v = self.stencils(y) - self.offset
-        squared = jnp.real(v) ** 2 + jnp.imag(v) ** 2
-        scale = length_scale(squared, self.length)
+        weight = self.row_weight**2
+        if self.group is None:
+            squared = jnp.real(v) ** 2 + jnp.imag(v) ** 2
+            scale = length_scale(squared, self.length)
+            turned = scale * v
+            turn = 1j * v * length_scale(squared, jnp.ones_like(squared))
+            softness = weight * scale * (2 - scale)
+        else:
+            # A group's rotation u = S / |S| fits S = sum_r v_r conj(c_r); turning it by
+            # a small angle moves each target by i u c_r, and the Gauss-Newton matrix
+            # loses (2 |S| - sum_r |c_r|^2) / |S|^2 along that angle's derivative.
+            fit = group_sum(v * jnp.conj(self.rotation), self.group)
+            squared = jnp.real(fit) ** 2 + jnp.imag(fit) ** 2
+            inverse = length_scale(squared, 1.0)
+            turned = (fit * inverse)[self.group] * self.rotation
+            turn = 1j * turned
+            mass = group_sum(self.length**2, self.group)
+            softness = weight * ((2 * squared * inverse - mass) * inverse**2)[self.group]
         mvc = apply_stencils(self.linear_rows, self.linear_coef, y)
-        r = jnp.concatenate([self.row_weight * (v - scale * v), mvc])
+        r = jnp.concatenate([self.row_weight * (v - turned), mvc])
         return Linearisation(
             residual=jnp.stack([jnp.real(r), jnp.imag(r)]),
-            turn=1j * v * length_scale(squared, jnp.ones_like(squared)),
-            scale=scale, turned=scale * v)
+            turn=turn, softness=softness, turned=turned)
+
+    def across(self, turn: Complex[Array, " m"], x: Float[Array, "2 n"]) -> Float[Array, " m"]:
+        """How far the stencils of `x` turn each row's rotation, along `turn`: each
+        row's own, or summed over its group's rows where rows turn together."""
+        across = jnp.real(jnp.conj(turn) * self.stencils(x))
+        return across if self.group is None else group_sum(across, self.group)[self.group]
 
     def energy_at(self, y: Float[Array, "2 n"]) -> Float[Array, ""]:
         """The energy (6) at `y`, by `mvcjax.advanced.total_energy` (what solvers report)."""
@@ -164,13 +205,17 @@ class Linearisation(eqx.Module):
 
     Attributes:
         residual: `(2, r)` the residuals (`ScaledProblem.residuals`).
-        turn: `(m,)` for each stencil row, the unit vector across its current vector `v`
-            (as a complex number; zero for a zero vector).
-        scale: `(m,)` `c`, rest length over current length (zero for the handle rows).
-        turned: `(m,)` `c v`, the vector turned to its rest length.
+        turn: `(m,)` for each stencil row, how its target moves as its rotation turns:
+            for a turned row the unit vector across its current vector `v` (as a complex
+            number; zero for a zero vector), for a rotated row `i` times its target.
+        softness: `(m,)` what the rotation takes off each row's weight along `turn`:
+            `W_r c_r (2 - c_r)` for a turned row (`c_r` its rest length over its current
+            length), zero for the handle rows, which have no rest length.
+        turned: `(m,)` each row's target (its vector turned to its rest length, or its
+            rest vector turned by its group's rotation).
     """
 
     residual: Float[Array, "2 r"]
     turn: Complex[Array, " m"]
-    scale: Float[Array, " m"]
+    softness: Float[Array, " m"]
     turned: Complex[Array, " m"]

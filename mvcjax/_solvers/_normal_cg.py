@@ -206,9 +206,8 @@ class GaussNewtonMatrix(eqx.Module):
         weight = problem.row_weight**2
         normal_point = normal.mv(y)
         gradient = normal_point - problem.stencils_transpose(weight * (at.turned + problem.offset))
-        return cls(problem, normal, preconditioner, turn=at.turn,
-                   softness=weight * at.scale * (2 - at.scale), gradient=gradient,
-                   normal_point=normal_point)
+        return cls(problem, normal, preconditioner, turn=at.turn, softness=at.softness,
+                   gradient=gradient, normal_point=normal_point)
 
     def at_point(self) -> tuple[Array, Array, Array, Array]:
         """What depends on the point (`turn`, `softness`, `gradient`, `normal_point`):
@@ -218,7 +217,7 @@ class GaussNewtonMatrix(eqx.Module):
 
     def correction(self, x: Float[Array, "2 n"]) -> Float[Array, "2 n"]:
         """`N x - J^T J x`: the rotation terms."""
-        across = jnp.real(jnp.conj(self.turn) * self.problem.stencils(x))
+        across = self.problem.across(self.turn, x)
         return self.problem.stencils_transpose(self.softness * across * self.turn)
 
     def solve(self, rtol: float, max_steps: int, damping=0.0, previous=None):
