@@ -308,6 +308,11 @@ class Rig(JittableModule):
         if ladder is not None and not isinstance(ladder, SizeLadder):
             raise TypeError(f"ladder must be an mvcjax.SizeLadder() or None, got "
                             f"{ladder!r}.")
+        if ladder is not None and weights.arap is not None:
+            raise ValueError(
+                "ladder=SizeLadder() shares programs between rigs of the paper's energy; "
+                "Weights(arap=...) adds the as-rigid-as-possible term, which it does not "
+                "pad: build these rigs without ladder= (or without arap=).")
 
         centre, scale = bounding_frame(shape.outer)
         check_representable(centre, scale, dtype)

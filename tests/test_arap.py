@@ -176,3 +176,23 @@ def test_arap_rigs_do_not_depend_on_where_the_shape_sits(horse, dtype):
     assert np.abs(moved_posed - posed).max() < tolerance
     assert np.abs(posed - np.asarray(rig.shape_mesh.vertices)).max() > 0.05 * float(
         rig.frame.scale)
+
+
+def test_the_term_in_a_stack_and_a_ladder(horse):
+    # A stack pads the control triangles with degenerate ones, whose rows are zero: each
+    # rig poses as alone. The size ladder does not pad the term: refused, with the fix.
+    weights = mvcjax.Weights(arap=10.0)
+    shapes = [datasets.glyph(c) for c in "HK"]
+    rigs = [mvcjax.Rig.build(s, np.concatenate(datasets.glyph_handles(s)), weights=weights)
+            for s in shapes]
+    stack = mvcjax.Rig.stack(rigs)
+    targets = jnp.stack([r.handle_positions + jnp.asarray([[0.0, 30.0]] * 3 + [[0.0, 0.0]] * 3)
+                         for r in rigs])
+    posed = jax.vmap(lambda r, t: r.deform(t))(stack, targets)
+    for i, rig in enumerate(rigs):
+        alone = np.asarray(rig.deform(targets[i]))
+        assert np.abs(np.asarray(posed[i, :len(alone)]) - alone).max() < 1e-4 * float(
+            rig.frame.scale)
+    with pytest.raises(ValueError, match="without ladder="):
+        mvcjax.Rig.build(horse, datasets.horse_handles(), weights=weights,
+                         ladder=mvcjax.SizeLadder())
