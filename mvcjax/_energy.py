@@ -9,7 +9,7 @@ import numpy as np
 from jaxtyping import Array, Complex, Float, Int
 
 from ._checks import as_array, kind_of
-from ._stencils import EDGE, LAPLACIAN, Stencil, length_scale, turn_rest
+from ._stencils import EDGE, LAPLACIAN, Blocks, Stencil, length_scale, turn_rest
 
 
 def _safe_normalise(v: Float[Array, "m 2"]) -> Float[Array, "m 2"]:
@@ -22,8 +22,12 @@ def _safe_normalise(v: Float[Array, "m 2"]) -> Float[Array, "m 2"]:
 MAX_WEIGHT_RATIO = 1e8
 NORMAL_WEIGHT = 100.0
 # The share of the largest shape term's weight that a zero Laplacian or mean value weight
-# is raised to (`Weights.tie_broken`).
-TIE_WEIGHT = 1e-4
+# is raised to (`Weights.tie_broken`): small, yet large enough that the normal matrix of a
+# polygon held by the tie alone stays definite in float32.
+TIE_WEIGHT = 1e-3
+# The default mean value weight: small beside the default as-rigid-as-possible weight (1),
+# so that it bends nothing, yet a weight, which holds a stack's padded vertices.
+DEFAULT_MVC = 1e-4
 # Any positive weight, so that it and its square root stay normal float32 numbers.
 WEIGHT_RANGE = (1e-36, 1e36)
 
@@ -32,8 +36,8 @@ def _weight(name: str):
     """The converter of the weight `name`: a number to an array, anything else refused
     by name (JAX's own error speaks of dtypes)."""
     def convert(value):
-        if value is None and name == "arap":
-            return None  # the term not asked for
+        if value is None and name != "handle":
+            return None  # the term left out of the energy
         if not isinstance(value, jax.Array):
             host = as_array(value, f"Weights({name}=...)", "a number")
             if host.dtype.kind not in "iuf":
@@ -47,26 +51,39 @@ def _weight(name: str):
 
 
 class Weights(eqx.Module):
-    """Weights of the four terms of the energy (6), and of the as-rigid-as-possible
-    term where it is asked for, each multiplying a squared norm.
+    """Weights of the energy's terms, each multiplying a squared norm: the four of the
+    paper's energy (6) and the as-rigid-as-possible term.
 
-    The paper leaves all four at 1. The handle rows are then a handful among hundreds
-    of L, M and H rows, which pull the handles back: a dragged handle stops visibly
-    short of its target. The miss falls about in inverse proportion to the handle
-    weight; at 100, the default, it is negligible (`benchmarks/folds.py` reports it).
-    Much larger weights only worsen the conditioning of `G` in float32 for no visible
-    gain.
+    The default is the as-rigid-as-possible energy: `arap` and the handles, the mean
+    value rows kept at a weight too small to matter (see `mvc`), the Laplacian and edge
+    lengths left out.
+    It bends limbs, curls strips and letters with far fewer triangles turned inside out
+    than the paper's energy (the fold suite, `benchmarks/folds.py`, measures both), at
+    the same cost a frame. The paper's energy is `Weights.paper()`: its four terms, all
+    1 in the paper but for the handles. The handle rows are a handful among hundreds of
+    others, which pull the handles back: at the paper's weight 1 a dragged handle stops
+    visibly short of its target. The miss falls about in inverse proportion to the
+    handle weight; at 100, the default, it is negligible (`benchmarks/folds.py` reports
+    it). Much larger weights only worsen the conditioning of `G` in float32 for no
+    visible gain.
 
     Attributes:
-        laplacian: weight of `|L V - delta(V)|^2` (boundary detail, the silhouette).
-        mvc: weight of `|M V|^2` (inner vertices stay at their mean value position).
-        length: weight of `|H V - e(V)|^2` (edge lengths, local rigidity).
-        handle: weight of `|C V - U|^2` (how hard the handles pull).
+        laplacian: weight of `|L V - delta(V)|^2` (boundary detail, the silhouette);
+            default None.
+        mvc: weight of `|M V|^2` (inner vertices stay at their mean value position);
+            default `DEFAULT_MVC`, a ten-thousandth of the as-rigid-as-possible term's:
+            the rows stay, where a stack or a size ladder holds its padded vertices.
+            Being linear, they live in the fixed-G factor only and cost nothing a step.
+        length: weight of `|H V - e(V)|^2` (edge lengths, local rigidity); default None.
+        handle: weight of `|C V - U|^2` (how hard the handles pull); default 100.
         arap: weight of the as-rigid-as-possible term on the control triangles,
             `sum_t area_t |J_t - R_t|^2` (`as_rigid_as_possible`: each triangle's
-            deformation gradient against the rotation nearest to it), or None (the
-            default: no such term, the paper's energy). Its presence shapes the
-            compiled programs; its value, like every weight's, does not.
+            deformation gradient against the rotation nearest to it); default 1.
+
+    A weight of None leaves its term out of the energy (and out of the compiled
+    programs: no rows, no work), where 0 keeps its rows at no weight. Which terms are
+    present shapes the compiled programs; their values, like every weight's, do not.
+    `handle` is never None.
 
     Only the ratios between the weights matter: the solvers and factors use the weights
     scaled to a fixed largest value (`normalised`), so `Weights(1e-30, 1e-30, 1e-30,
@@ -89,18 +106,27 @@ class Weights(eqx.Module):
     is refused by `check_weights`.
     """
 
-    laplacian: Float[Array, ""] = eqx.field(default=1.0, converter=_weight("laplacian"))
-    mvc: Float[Array, ""] = eqx.field(default=1.0, converter=_weight("mvc"))
-    length: Float[Array, ""] = eqx.field(default=1.0, converter=_weight("length"))
+    laplacian: Float[Array, ""] | None = eqx.field(default=None, converter=_weight("laplacian"))
+    mvc: Float[Array, ""] | None = eqx.field(default=DEFAULT_MVC, converter=_weight("mvc"))
+    length: Float[Array, ""] | None = eqx.field(default=None, converter=_weight("length"))
     handle: Float[Array, ""] = eqx.field(default=100.0, converter=_weight("handle"))
-    arap: Float[Array, ""] | None = eqx.field(default=None, converter=_weight("arap"))
+    arap: Float[Array, ""] | None = eqx.field(default=1.0, converter=_weight("arap"))
 
     def _values(self) -> dict[str, Array]:
-        """The weights given, by name (`arap` only where the term is asked for)."""
+        """The weights given, by name (those not None)."""
         names = ("laplacian", "mvc", "length", "handle", "arap")
         return {k: getattr(self, k) for k in names if getattr(self, k) is not None}
 
+    def terms(self) -> tuple[str, ...]:
+        """The names of the terms these weights put in the energy (those not None)."""
+        return tuple(self._values())
+
     def __check_init__(self):
+        if self.laplacian is None and self.arap is None:
+            raise ValueError(
+                "Weights(laplacian=None, arap=None) leaves the control polygon's corners that "
+                "no edge-length row reaches free (the energy has no unique minimum): give "
+                "laplacian a weight (0 is raised to a small tie-break) or give arap one.")
         values = self._values()
         if any(isinstance(v, jax.core.Tracer) for v in values.values()):
             return  # traced (under jit or grad): checked where the weights were made
@@ -168,18 +194,29 @@ class Weights(eqx.Module):
         return jax.tree.map(lambda w: w * factor, self.tie_broken())
 
     def largest_shape(self) -> Float[Array, ""]:
-        """The largest of the Laplacian, mean value and edge-length weights."""
-        return jnp.maximum(jnp.maximum(self.laplacian, self.mvc), self.length)
+        """The largest of the Laplacian, mean value and edge-length weights given (0
+        where none is)."""
+        given = [w for w in (self.laplacian, self.mvc, self.length) if w is not None]
+        return jnp.max(jnp.stack(given)) if given else jnp.zeros((), self.handle.dtype)
 
     def holding(self) -> Float[Array, ""]:
         """The largest weight of a term that holds the shape (all but the handles')."""
         return self.largest_shape() if self.arap is None else jnp.maximum(
             self.largest_shape(), self.arap)
 
+    @classmethod
+    def paper(cls, **weights) -> Weights:
+        """The paper's energy (6): the Laplacian, mean value, edge-length and handle
+        terms, all 1 in the paper but for the handles (see the class docstring), and no
+        as-rigid-as-possible term; any of them given by keyword
+        (`Weights.paper(length=3.0)`)."""
+        return cls(**{"laplacian": 1.0, "mvc": 1.0, "length": 1.0, "handle": 100.0,
+                      "arap": None, **weights})
+
     def tie_broken(self) -> Weights:
         """The weights with a Laplacian or mean value weight of zero raised to
-        `TIE_WEIGHT` times the largest shape term's weight (a positive weight, however
-        small, is the user's and stays).
+        `TIE_WEIGHT` times the largest weight of a term that holds the shape (`holding`;
+        a positive weight, however small, is the user's and stays).
 
         Each term alone leaves some vertices free: the Laplacian holds only the outline,
         the mean value rows only the inner vertices, and the edge lengths (every edge
@@ -188,10 +225,14 @@ class Weights(eqx.Module):
         point near the one the term picks as its weight goes to zero (the inner
         vertices follow the outline by their mean value coordinates, the outline keeps
         its detail)."""
-        tie = TIE_WEIGHT * self.largest_shape()
+        tie = TIE_WEIGHT * self.holding()
+
+        def broken(w):
+            return None if w is None else jnp.where(w > 0, w, tie)
+
         return eqx.tree_at(lambda w: (w.laplacian, w.mvc), self,
-                           (jnp.where(self.laplacian > 0, self.laplacian, tie),
-                            jnp.where(self.mvc > 0, self.mvc, tie)))
+                           (broken(self.laplacian), broken(self.mvc)),
+                           is_leaf=lambda x: x is None)
 
 
 def check_weights(weights, name: str = "weights") -> Weights:
@@ -249,8 +290,8 @@ class Term(eqx.Module):
         weight: its weight (a scalar).
         length: `(m,)` the rows' rest lengths (`turned` terms; None otherwise).
         rest: `(m, 2)` the rows' rest vectors (`rotated` terms; None otherwise).
-        group: `(m,)` the rotation each row shares (`rotated` terms: an index below
-            `m`, the rows of a group turning together; None otherwise).
+        group: how many consecutive rows share a rotation (`rotated` terms; None
+            otherwise): rows `k * group` to `k * group + group - 1` turn together.
         pinned: whether its rows are measured from the handle targets.
     """
 
@@ -259,7 +300,7 @@ class Term(eqx.Module):
     weight: Float[Array, ""]
     length: Float[Array, " m"] | None = None
     rest: Float[Array, "m 2"] | None = None
-    group: Int[Array, " m"] | None = None
+    group: int | None = eqx.field(default=None, static=True)
     pinned: bool = eqx.field(default=False, static=True)
 
     @classmethod
@@ -275,7 +316,7 @@ class Term(eqx.Module):
 
     @classmethod
     def rotated(cls, name: str, stencil: Stencil, weight, rest: Float[Array, "m 2"],
-                group: Int[Array, " m"]) -> Term:
+                group: int) -> Term:
         return cls(name, stencil, jnp.asarray(weight), rest=rest, group=group)
 
     @classmethod
@@ -302,16 +343,16 @@ class Term(eqx.Module):
             return jax.lax.complex(self.rest[:, 0], self.rest[:, 1])
         return self.length.astype(jnp.result_type(self.length, jnp.complex64))
 
-    def local_group(self) -> Int[Array, " m"]:
-        """A local term's groups (a turned row is a group of its own)."""
-        return self.group if self.group is not None else jnp.arange(self.count)
+    def blocks(self) -> Blocks:
+        """Its rows' groups (`Blocks`): a turned or linear row is a group of its own."""
+        return ((self.count, self.group or 1),)
 
     def residual(self, vertices: Float[Array, "n 2"], targets: Float[Array, "h 2"] | None
                  ) -> Float[Array, "m 2"]:
         """`D V - target(V)`, unweighted."""
         v = self.stencil.vectors(vertices)
         if self.rest is not None:
-            t = turn_rest(jax.lax.complex(v[:, 0], v[:, 1]), self.local_rest(), self.group)
+            t = turn_rest(jax.lax.complex(v[:, 0], v[:, 1]), self.local_rest(), self.blocks())
             return v - jnp.stack([jnp.real(t), jnp.imag(t)], axis=1)
         if self.length is not None:
             return v - self.length[:, None] * _safe_normalise(v)
@@ -346,9 +387,8 @@ def as_rigid_as_possible(rest: Float[Array, "n 2"], faces: Int[Array, "f 3"], we
     coef = jnp.transpose(gradients, (0, 2, 1)) * root_area[:, None, None]  # (f, 2, 3)
     rows = jnp.broadcast_to(faces[:, None, :], coef.shape)
     axes = jnp.eye(2, dtype=rest.dtype)[None] * root_area[:, None, None]  # (f, 2, 2)
-    count = faces.shape[0]
     return Term.rotated("arap", Stencil(rows.reshape(-1, 3), coef.reshape(-1, 3)), weight,
-                        axes.reshape(-1, 2), jnp.repeat(jnp.arange(count), 2))
+                        axes.reshape(-1, 2), 2)
 
 
 class Energy(eqx.Module):
@@ -408,13 +448,17 @@ class Energy(eqx.Module):
         mvc = Stencil(jnp.concatenate([self.mvc_centre[:, None], self.mvc_ring], axis=1),
                       jnp.concatenate([jnp.ones_like(self.mvc_weight[:, :1]),
                                        -self.mvc_weight], axis=1))
+        declared = (
+            (w.laplacian, lambda: Term.turned(
+                "laplacian", Stencil.fixed(self.laplacian_index, LAPLACIAN, dtype),
+                w.laplacian, self.laplacian_length)),
+            (w.mvc, lambda: Term.linear("mvc", mvc, w.mvc)),
+            (w.length, lambda: Term.turned("length", Stencil.fixed(self.edges, EDGE, dtype),
+                                           w.length, self.edge_length)),
+            (w.arap, lambda: as_rigid_as_possible(self.rest, self.faces, w.arap)),
+        )
         return (
-            Term.turned("laplacian", Stencil.fixed(self.laplacian_index, LAPLACIAN, dtype),
-                        w.laplacian, self.laplacian_length),
-            Term.linear("mvc", mvc, w.mvc),
-            Term.turned("length", Stencil.fixed(self.edges, EDGE, dtype), w.length,
-                        self.edge_length),
-            *(() if w.arap is None else (as_rigid_as_possible(self.rest, self.faces, w.arap),)),
+            *(make() for weight, make in declared if weight is not None),
             Term.pinned_to_targets("handle", self.handle_stencil(), w.handle),
             *(eqx.tree_at(lambda t: t.weight, t, t.weight * factor) for t in self.extra),
         )
@@ -435,7 +479,11 @@ class Energy(eqx.Module):
 
     def term(self, name: str) -> Term:
         """The term called `name` (unnormalised weights)."""
-        return next(t for t in self.terms() if t.name == name)
+        found = [t for t in self.terms() if t.name == name]
+        if not found:
+            raise ValueError(f"This energy has no {name!r} term (its weight is None); its "
+                             f"terms: {[t.name for t in self.terms()]}.")
+        return found[0]
 
     def stencils(self) -> tuple[Stencil, ...]:
         """The rows of every term, in the energy's order."""

@@ -31,10 +31,12 @@ from jaxtyping import Array, ArrayLike, Complex, Float, Int
 
 from ._energy import Energy
 from ._stencils import (
+    Blocks,
     Stencil,
     apply_stencils,
     apply_stencils_transpose,
     length_scale,
+    merge_blocks,
     transpose_table,
     turn_rest,
 )
@@ -81,35 +83,37 @@ def sparse_operators(energy: Energy) -> tuple[scipy.sparse.csr_matrix, ...]:
 
 def _local_rows(
     energy: Energy,
-) -> tuple[Int[Array, "m 3"], Float[Array, "m 3"], Complex[Array, " m"], Int[Array, " m"] | None]:
+) -> tuple[Int[Array, "m 3"], Float[Array, "m 3"], Complex[Array, " m"]]:
     """The rows of every local term (the Laplacian and edge rows, and any rotated term)
     merged, so that the local step is one gather: row `r` is
     `y_r = sum_k coef[r, k] V[rows[r, k]]`, its target its rest vector turned by its
-    group's rotation (`turn_rest`). The groups are None where every row is a group of
-    its own (only turned terms: the paper's energy)."""
+    group's rotation (`turn_rest`; the groups laid out as `local_blocks` says)."""
     local = [t for t in energy.terms() if t.is_local]
     merged = Stencil.concatenate(*(t.stencil for t in local))
-    rest = jnp.concatenate([t.local_rest() for t in local])
-    if all(t.group is None for t in local):
-        return merged.rows, merged.coef, rest, None
-    offsets = np.cumsum([0, *(t.count for t in local)])
-    group = jnp.concatenate([t.local_group() + o for t, o in zip(local, offsets)])
-    return merged.rows, merged.coef, rest, group
+    return merged.rows, merged.coef, jnp.concatenate([t.local_rest() for t in local])
+
+
+def local_blocks(energy: Energy) -> Blocks | None:
+    """The blocks of a factor's local rows (`AbstractFactor.blocks`): None where every
+    row turns alone. From the terms' shapes only: nothing is computed or compiled."""
+    terms = jax.eval_shape(lambda e: e.terms(), energy)
+    blocks = merge_blocks(sum((t.blocks() for t in terms if t.is_local), ()))
+    return blocks if any(group > 1 for _, group in blocks) else None
 
 
 def _local_fields(energy: Energy) -> dict[str, Array | None]:
-    """A factor's local-step fields (`AbstractFactor`): rows, coefficients, rest
-    lengths, and the rest vectors and groups where some term is rotated."""
-    rows, coef, rest, group = _local_rows(energy)
+    """A factor's local-step arrays (`AbstractFactor`): rows, coefficients, rest
+    lengths, and the rest vectors where some term is rotated (`local_blocks`)."""
+    rows, coef, rest = _local_rows(energy)
     return dict(rows=rows, coef=coef, length=jnp.abs(rest).astype(energy.rest.dtype),
-                rotation=None if group is None else rest, group=group)
+                rotation=None if local_blocks(energy) is None else rest)
 
 
 @jax.jit
 def _local_stencil(energy: Energy) -> tuple[Int[Array, "m 3"], Float[Array, "m 3"]]:
     # One compiled call (cached by shapes) instead of dozens of eager small ones, each
     # compiled anew for a rig of new sizes.
-    rows, coef, _, _ = _local_rows(energy)
+    rows, coef, _ = _local_rows(energy)
     return rows, coef
 
 
@@ -145,7 +149,7 @@ class AbstractFactor(eqx.Module):
     The local-step data is shared: the merged Laplacian and edge rows, then any other
     local term's (`rows`, `coef`), their rest lengths (`length`), and where a term is
     rotated (its rows turn together, `Term.rotated`) their rest vectors (`rotation`) and
-    groups (`group`); and the rest mesh (`rest`) and the rows of `C` (`handle_rows`,
+    groups (`blocks`, static); and the rest mesh (`rest`) and the rows of `C` (`handle_rows`,
     `handle_coef`), which steps are taken relative to (`StepData`).
 
     Steps take and return the vertices coordinate-major, as the rows `V^T` of shape
@@ -160,15 +164,15 @@ class AbstractFactor(eqx.Module):
     handle_rows: eqx.AbstractVar[Int[Array, "h j"]]
     handle_coef: eqx.AbstractVar[Float[Array, "h j"]]
     rotation: eqx.AbstractVar[Complex[Array, " m"] | None]
-    group: eqx.AbstractVar[Int[Array, " m"] | None]
+    blocks: eqx.AbstractVar[Blocks | None]
 
     def local_targets(self, columns: Float[Array, "2 n"]) -> Complex[Array, " m"]:
         """`[delta(V); e(V); ...]`: each Laplacian and edge vector turned to its rest
         length, each rotated row's rest vector turned by its group's rotation."""
         y = apply_stencils(self.rows, self.coef, columns)
-        if self.group is None:
+        if self.rotation is None:
             return y * length_scale(jnp.real(y) ** 2 + jnp.imag(y) ** 2, self.length)
-        return turn_rest(y, self.rotation, self.group)
+        return turn_rest(y, self.rotation, self.blocks)
 
     def target_shift(self, targets: Float[Array, "h 2"]) -> Float[Array, "2 h"]:
         """The handle targets less the handles' rest positions, coordinate-major."""
@@ -230,8 +234,10 @@ class AbstractFactor(eqx.Module):
         Gauss-Newton matrix is `N` less the rotation terms."""
 
     @abc.abstractmethod
-    def rebuild(self, energy: Energy) -> AbstractFactor:
-        """The same kind of factor for the energy's (new) weights."""
+    def rebuild(self, energy: Energy, same_terms: bool = True) -> AbstractFactor:
+        """The same kind of factor for the energy's (new) weights; `same_terms=False`
+        where they put other terms in the energy (not under `jit`: the rows' tables are
+        made anew on the host)."""
 
 
 # The normal matrix is symmetric positive definite; lineax asks for the tags.
@@ -288,7 +294,7 @@ class DenseFactor(AbstractFactor):
             touch each vertex, padded with `rows.size` (`transpose_table`).
         spread_coef: `(n, d)` their coefficients times their row's weight (0 on
             padding): `A^T W b` for the local rows is a gather of `b` by `spread`.
-        rows, coef, length, rest, handle_rows, handle_coef, rotation, group: see
+        rows, coef, length, rest, handle_rows, handle_coef, rotation, blocks: see
             `AbstractFactor`.
     """
 
@@ -305,7 +311,7 @@ class DenseFactor(AbstractFactor):
     handle_rows: Int[Array, "h j"]
     handle_coef: Float[Array, "h j"]
     rotation: Complex[Array, " m"] | None
-    group: Int[Array, " m"] | None
+    blocks: Blocks | None = eqx.field(static=True)
 
     def handle_part(self, targets):
         return StepData(self.local_targets(self.rest),
@@ -320,7 +326,7 @@ class DenseFactor(AbstractFactor):
         # docs' how-it-works page). The product is `N^{-1} (A^T W b)`, not `G b`:
         # `A^T W b` is a cheap gather (`spread`), and `N^{-1}` is `n x n` where `G` is
         # `n x m`, m near 2.3 n on the horse: fewer flops per frame.
-        if self.group is not None:  # rotated rows: each frame's step, vmapped
+        if self.rotation is not None:  # rotated rows: each frame's step, vmapped
             return super().step_frames(vertices, data)
 
         def local(coordinate):
@@ -345,8 +351,8 @@ class DenseFactor(AbstractFactor):
     def multiply_normal(self, columns):
         return columns @ self.normal
 
-    def rebuild(self, energy):
-        return dense_factor(energy, self.spread)
+    def rebuild(self, energy, same_terms=True):
+        return dense_factor(energy, self.spread if same_terms else None)
 
 
 def dense_factor(energy: Energy, spread: Int[ArrayLike, "n d"] | None = None) -> DenseFactor:
@@ -387,7 +393,7 @@ def _dense_factor(energy: Energy, spread: Int[Array, "n d"]) -> DenseFactor:
             cho, jnp.eye(normal.shape[0], dtype=normal.dtype)),
         spread=spread, spread_coef=jnp.append(entries, 0.0)[spread],
         rest=energy.rest.T, handle_rows=energy.handles, handle_coef=energy.handle_coef,
-        **local,
+        blocks=local_blocks(energy), **local,
     )
 
 
@@ -440,7 +446,7 @@ class SparseFactor(AbstractFactor):
     """`N = A^T W A` factored once on the host; steps solve `N V = A^T W b(V)`.
 
     Attributes:
-        rows, coef, length, rest, handle_rows, handle_coef, rotation, group: see
+        rows, coef, length, rest, handle_rows, handle_coef, rotation, blocks: see
             `AbstractFactor`.
         row_weight: `(m,)` the weight of each local row (Laplacian or length weight).
         normal_rows, normal_cols, normal_values: `N` as triplets, for the matrix-vector
@@ -463,7 +469,7 @@ class SparseFactor(AbstractFactor):
     host_key: Int[Array, ""]
     host: _HostSolve = eqx.field(static=True)
     rotation: Complex[Array, " m"] | None
-    group: Int[Array, " m"] | None
+    blocks: Blocks | None = eqx.field(static=True)
 
     def _multiply(self, x: Float[Array, "n 2"]) -> Float[Array, "n 2"]:
         return jax.ops.segment_sum(
@@ -497,13 +503,13 @@ class SparseFactor(AbstractFactor):
     def multiply_normal(self, columns):
         return self._multiply(columns.T).T
 
-    def rebuild(self, energy):
+    def rebuild(self, energy, same_terms=True):
         return sparse_factor(energy)
 
 
 @jax.jit
 def _sparse_local_rows(energy: Energy):
-    """The local step's fields, and the weight of each row (its term's)."""
+    """The local step's arrays, and the weight of each row (its term's)."""
     return _local_fields(energy), _local_row_weights(energy)
 
 
@@ -525,6 +531,7 @@ def sparse_factor(energy: Energy) -> SparseFactor:
     as_int = lambda a: to_device(a, np.int32)  # noqa: E731
     return SparseFactor(
         **local,
+        blocks=local_blocks(energy),
         row_weight=row_weight,
         normal_rows=as_int(normal.row),
         normal_cols=as_int(normal.col),

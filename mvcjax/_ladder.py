@@ -21,9 +21,10 @@ import types
 import weakref
 
 import equinox as eqx
+import jax
 import numpy as np
 
-from ._factor import DenseFactor
+from ._factor import DenseFactor, local_blocks
 from ._skinning import block_width_limit
 from ._stencils import transpose_table
 from ._xla import to_device
@@ -148,18 +149,23 @@ def cut_factor(padded: DenseFactor, twin_energy, energy) -> DenseFactor:
     rows and columns of its `G` are the rig's `G`, and its `N` differs from the rig's only
     by the holders' weight on vertex 0.
     """
-    c, lap, edges = (energy.rest.shape[0], energy.laplacian_index.shape[0],
-                     energy.edges.shape[0])
-    # The local rows: the Laplacian's (padded to the twin's count), then the edges'.
-    real = np.r_[0:lap, twin_energy.laplacian_index.shape[0] + np.arange(edges)]
+    c = energy.rest.shape[0]
+    # Each local term's rows, padded to the twin's count: the rig's are the first.
+    local = [(t.name, t.count) for t in _shapes(energy) if t.is_local]
+    twin_counts = [t.count for t in _shapes(twin_energy) if t.is_local]
+    starts = np.cumsum([0, *twin_counts[:-1]])
+    real = np.concatenate([start + np.arange(count)
+                           for start, (_, count) in zip(starts, local)])
     host = {k: np.asarray(getattr(padded, k)) for k in
             ("shape", "handle", "normal", "normal_inverse", "rows", "coef", "length")}
     weights = energy.weights.normalised()
     normal = host["normal"][:c, :c].copy()
     normal[0, 0] -= (twin_energy.rest.shape[0] - c) * float(weights.mvc)
     rows, coef = host["rows"][real], host["coef"][real]
-    row_weight = np.r_[np.full(lap, float(weights.laplacian)),
-                       np.full(edges, float(weights.length))]
+    row_weight = np.concatenate([np.full(count, float(getattr(weights, name)))
+                                 for name, count in local])
+    rotation = None if padded.rotation is None else to_device(
+        np.asarray(padded.rotation)[real], padded.rotation.dtype)
     spread = transpose_table(rows, coef, c)
     entries = np.append((coef * row_weight[:, None]).reshape(-1), 0.0)
     dtype = energy.rest.dtype
@@ -172,5 +178,11 @@ def cut_factor(padded: DenseFactor, twin_energy, energy) -> DenseFactor:
         spread=to_device(spread, np.int32), spread_coef=real_array(entries[spread]),
         rows=to_device(rows, np.int32), coef=real_array(coef),
         length=real_array(host["length"][real]), rest=real_array(np.asarray(energy.rest).T),
-        handle_rows=energy.handles, handle_coef=energy.handle_coef, rotation=None, group=None,
+        handle_rows=energy.handles, handle_coef=energy.handle_coef, rotation=rotation,
+        blocks=local_blocks(energy),
     )
+
+
+def _shapes(energy):
+    """The energy's terms, their arrays as shapes only (nothing computed or compiled)."""
+    return jax.eval_shape(lambda e: e.terms(), energy)

@@ -293,7 +293,10 @@ def control_polygon(shape: Shape, margin: float, spacing: float) -> list[np.ndar
     shapely.prepare(outside)
     loops = []
     for r in [region.exterior, *region.interiors]:
-        ring = np.asarray(r.coords)[:-1]
+        # The offset keeps a straight side as one edge: split it, so that the polygon's
+        # edges are at most `spacing` long there too (a limb needs polygon vertices
+        # along it to bend).
+        ring = _resample_ring(np.asarray(r.coords)[:-1], spacing)
         loops.append(_simplify_ring(ring, spacing, inside, outside))
     control = shapely.Polygon(loops[0], loops[1:])
     if not control.is_valid or not control.contains(poly):

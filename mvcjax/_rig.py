@@ -308,11 +308,13 @@ class Rig(JittableModule):
         if ladder is not None and not isinstance(ladder, SizeLadder):
             raise TypeError(f"ladder must be an mvcjax.SizeLadder() or None, got "
                             f"{ladder!r}.")
-        if ladder is not None and weights.arap is not None:
+        if ladder is not None and weights.mvc is None:
             raise ValueError(
-                "ladder=SizeLadder() shares programs between rigs of the paper's energy; "
-                "Weights(arap=...) adds the as-rigid-as-possible term, which it does not "
-                "pad: build these rigs without ladder= (or without arap=).")
+                "ladder=SizeLadder() holds each padded control vertex of its twin by a mean "
+                "value row, and Weights(mvc=None) leaves that term out: give it a weight "
+                "(a small one, as the default's, bends nothing: its rows live in the factor "
+                "only), or "
+                "build without ladder=.")
 
         centre, scale = bounding_frame(shape.outer)
         check_representable(centre, scale, dtype)
@@ -458,10 +460,18 @@ class Rig(JittableModule):
         """
         weights = check_weights(weights).verified(bool(self.energy.extra))
         energy = check_shape_held(eqx.tree_at(lambda e: e.weights, self.energy,
-                                              weights.astype(self.energy.rest.dtype)))
+                                              weights.astype(self.energy.rest.dtype),
+                                              is_leaf=lambda x: x is None))
+        same_terms = weights.terms() == self.energy.weights.terms()
+        if not same_terms and _traced(weights):
+            raise ValueError(
+                f"with_weights under jit or grad keeps the rig's terms "
+                f"{self.energy.weights.terms()}; these weights have {weights.terms()} (a "
+                "weight of None leaves its term out). Call with_weights outside the "
+                "transformation to change which terms the energy has.")
         twin = padded_twin(self)
-        if twin is None or _traced(weights):
-            factor = self.factor.rebuild(energy)
+        if twin is None or not same_terms or _traced(weights):
+            factor = self.factor.rebuild(energy, same_terms)
             return eqx.tree_at(lambda r: (r.energy, r.factor), self, (energy, factor))
         # The twin's factor, rebuilt by its program, and the rig's cut from it.
         twin = twin.with_weights(weights)
@@ -773,10 +783,20 @@ def _deform(rig: Rig, targets, solver: AbstractSolver, init):
     return rig.skinning(vertices, rig.frame), info
 
 
+# A rest Laplacian shorter than this (the rig's frame: a unit diagonal) is a straight
+# stretch of the polygon, rounded.
+STRAIGHT = 1e-12
+
+
 def _energy_data(vertices, faces, loops, inner, handles, weights, dtype) -> Energy:
     """The energy's data for a control mesh in the rig's frame (unit diagonal)."""
     lap_index = _laplacian_index(loops)
     lap_vectors = np.einsum("k,pkd->pd", LAPLACIAN, vertices[lap_index])
+    lap_length = np.linalg.norm(lap_vectors, axis=1)
+    # Collinear polygon vertices (a straight side split to the spacing) have a zero rest
+    # Laplacian; rounding leaves ~1e-17, whose target would turn with the noise of a
+    # still-straight side (and its derivative with it): zero.
+    lap_length[lap_length < STRAIGHT] = 0.0
     stars, star_valid = topology.vertex_stars(faces, len(vertices))
     ring, valid = stars[inner], star_valid[inner]  # an inner vertex's star is its 1-ring
     ring_weight = coords.mean_value_coordinates(vertices[inner], vertices[ring], valid)
@@ -785,7 +805,7 @@ def _energy_data(vertices, faces, loops, inner, handles, weights, dtype) -> Ener
     return Energy(
         rest=_array(vertices, dtype),
         laplacian_index=_ints(lap_index),
-        laplacian_length=_array(np.linalg.norm(lap_vectors, axis=1), dtype),
+        laplacian_length=_array(lap_length, dtype),
         mvc_centre=_ints(inner),
         mvc_ring=_ints(ring),
         mvc_weight=_array(ring_weight, dtype),

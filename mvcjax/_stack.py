@@ -263,6 +263,12 @@ def _check_stackable(rigs) -> None:
         if rig.energy.extra:
             raise ValueError(f"rigs[{i}] has extra terms (Rig.with_terms): a stack's rigs "
                              "share one energy's form; stack them without, then add none.")
+        if rig.energy.weights.mvc is None:
+            raise ValueError(
+                f"rigs[{i}] has no mean value term (Weights(mvc=None)): a stack holds each "
+                "padded control vertex by a mean value row; build the rigs with a mean value "
+                "weight (a small one, as the default's, bends nothing: its rows live in the "
+                "factor only).")
 
 
 def stack_rigs(rigs: Any, like: Any = None):

@@ -102,7 +102,8 @@ def turned_start(
     angle = weights @ handle_turns(handles, targets, common)
     # A row's angle: the mean of its vertices', weighted as the row weighs them.
     coef = jnp.abs(factor.coef)
-    row_angle = jnp.sum(coef * angle[factor.rows], axis=1) / jnp.sum(coef, axis=1)
+    total = jnp.sum(coef, axis=1)  # zero on a padded row (a stack's degenerate triangle)
+    row_angle = jnp.sum(coef * angle[factor.rows], axis=1) / jnp.where(total > 0, total, 1)
     part = factor.handle_part(pinned)
     local = part.rest_local * jnp.exp(1j * row_angle.astype(part.rest_local.real.dtype))
     return factor.global_step(local.astype(part.rest_local.dtype), part).T

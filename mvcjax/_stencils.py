@@ -110,27 +110,48 @@ def length_scale(squared_length: Array, length: ArrayLike) -> Array:
     return jnp.where(nonzero, length * jax.lax.rsqrt(jnp.where(nonzero, squared_length, 1.0)), 0.0)
 
 
-def turn_rest(y: Complex[Array, " m"], rest: Complex[Array, " m"],
-              group: Int[Array, " m"] | None) -> Complex[Array, " m"]:
+
+# Rows in blocks: `((rows, group), ...)`, each block `rows` consecutive rows in groups of
+# `group` consecutive rows that turn together (1: each row alone). Static: the layout of
+# the local terms' merged rows.
+Blocks = tuple[tuple[int, int], ...]
+
+
+def group_sum(values: Array, blocks: Blocks) -> Array:
+    """Each row's group's sum of `values` (rows along the first axis, laid out as
+    `blocks`), repeated on every row of the group."""
+    parts, start = [], 0
+    for rows, group in blocks:
+        part = values[start:start + rows]
+        if group > 1:
+            total = part.reshape(rows // group, group, *part.shape[1:]).sum(1, keepdims=True)
+            part = jnp.broadcast_to(total, (rows // group, group, *part.shape[1:])).reshape(
+                part.shape)
+        parts.append(part)
+        start += rows
+    return parts[0] if len(parts) == 1 else jnp.concatenate(parts)
+
+
+def turn_rest(y: Complex[Array, " m"], rest: Complex[Array, " m"], blocks: Blocks
+              ) -> Complex[Array, " m"]:
     """The local step's targets: each row's rest vector `rest[r]` turned by the rotation
     that best carries its group's rest vectors onto their current vectors `y` (the 2D
     Procrustes fit, `u = S / |S|` with `S = sum_r y_r conj(rest_r)` over the group).
 
-    `group[r]` is the group of row `r` (any index below the row count; a row alone in
-    its group is turned along its own vector, to its rest length). `group=None` puts
-    every row in a group of its own: the turned rows of the Laplacian and edge terms,
-    whose targets keep only the rest vectors' lengths. A zero fit (a zero current or
-    rest vector) gives a zero target, with finite gradients.
+    A row alone in its group is turned along its own vector, to its rest length (the
+    Laplacian and edge rows). A zero fit (zero current or rest vectors) gives a zero
+    target, with finite gradients.
     """
-    if group is None:
-        length = jnp.abs(rest)
-        return y * length_scale(jnp.real(y) ** 2 + jnp.imag(y) ** 2, length)
-    fit = group_sum(y * jnp.conj(rest), group)
-    unit = fit * length_scale(jnp.real(fit) ** 2 + jnp.imag(fit) ** 2, 1.0)
-    return unit[group] * rest
+    fit = group_sum(y * jnp.conj(rest), blocks)
+    return fit * length_scale(jnp.real(fit) ** 2 + jnp.imag(fit) ** 2, 1.0) * rest
 
 
-def group_sum(values: Array, group: Int[Array, " m"]) -> Array:
-    """The sum of `values` over each group (`values` along its first axis, one row per
-    row of `group`), indexed by group: `(m, ...)`, zero for an index no row is in."""
-    return jax.ops.segment_sum(values, group, num_segments=group.shape[0])
+def merge_blocks(blocks: Blocks) -> Blocks:
+    """`blocks` with neighbours of the same group size merged (one slice each)."""
+    out: list[tuple[int, int]] = []
+    for rows, group in blocks:
+        if out and out[-1][1] == group:
+            out[-1] = (out[-1][0] + rows, group)
+        elif rows:
+            out.append((rows, group))
+    return tuple(out)

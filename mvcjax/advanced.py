@@ -11,6 +11,7 @@ from ._coordinates import mean_value_coordinates as mean_value_coordinates
 from ._energy import (
     Energy as Energy,
     Term as Term,
+    as_rigid_as_possible as as_rigid_as_possible,
     handle_residual as handle_residual,
     laplacian_residual as laplacian_residual,
     length_residual as length_residual,

@@ -28,8 +28,10 @@
 # - (ra) the **full solve**: the same energy on the shape mesh itself
 #   (`Rig.build(..., control=mvcjax.FullSolve())`).
 #
-# Every rig is built through the same `Rig.build` and deformed with the same
-# `rig.deform(targets)`, the paper's 15 fixed-G iterations from the same start.
+# Every rig is built through the same `Rig.build` with the paper's energy
+# (`weights=mvcjax.Weights.paper()`; mvcjax's default is the as-rigid-as-possible energy)
+# and deformed with the same `rig.deform(targets, mvcjax.FixedG())`, the paper's 15
+# fixed-G iterations from the same start.
 
 # %%
 import json
@@ -52,18 +54,20 @@ from mvcjax import datasets, plot
 def compare(name):
     """Build the four rigs of a model, deform them under its default drag, and measure."""
     model = datasets.model(name)
+    paper = mvcjax.Weights.paper()
     rigs = {
-        "(na) control mesh only": model.rig(skinning=mvcjax.BarycentricSkinning()),
-        "paper's MVC": model.rig(skinning=mvcjax.MVCSkinning()),
-        "(da) control mesh + MVC": model.rig(),
+        "(na) control mesh only": model.rig(skinning=mvcjax.BarycentricSkinning(),
+                                            weights=paper),
+        "paper's MVC": model.rig(skinning=mvcjax.MVCSkinning(), weights=paper),
+        "(da) control mesh + MVC": model.rig(weights=paper),
         "(ra) full solve": mvcjax.Rig.build(
-            model.shape, model.handles, control=mvcjax.FullSolve(),
+            model.shape, model.handles, control=mvcjax.FullSolve(), weights=paper,
             shape_spacing=model.options.get("shape_spacing"),
         ),
     }
     ours = rigs["(da) control mesh + MVC"]
     targets = ours.handle_positions + model.drag
-    out = {key: np.asarray(rig.deform(targets)) for key, rig in rigs.items()}
+    out = {key: np.asarray(rig.deform(targets, mvcjax.FixedG())) for key, rig in rigs.items()}
     rest = np.asarray(ours.shape_mesh.vertices)
     faces = np.asarray(ours.shape_mesh.faces)
     full = out["(ra) full solve"]

@@ -377,3 +377,45 @@ for path in sorted(outputs.glob("pictures*")):
     print(f"{path.name:20} {path.stat().st_size / 1e3:6.0f} kB")
 display(SVG(filename=outputs / "pictures-pose.svg"))
 print(*(outputs / "pictures-pose.obj").read_text().splitlines()[:2], "...", sep="\n")
+
+# %% [markdown]
+# ## A limb bent far: the paper's energy, the default, FoldFree
+# The sprite's right arm raised 150 degrees about the shoulder, and the letter K's top
+# bent 90 degrees about its middle, posed three ways: the paper's energy
+# (`Weights.paper()`, 100 fixed-G steps), the default as-rigid-as-possible energy, and
+# `FoldFree()`. The triangles a pose turns inside out are counted, and drawn red over
+# the posed mesh (`plot.plot_folds`).
+
+
+# %%
+def turned(point, centre, degrees):
+    t = np.radians(degrees)
+    rot = np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
+    return centre + (np.asarray(point) - centre) @ rot.T
+
+
+sprite, sprite_handles = datasets.sprite(), datasets.sprite_handles()
+arm = np.array(mvcjax.Rig.build(sprite, sprite_handles).handle_positions)
+arm[4] = turned(arm[4], arm[3], 150)  # the right wrist about the right shoulder
+
+letter = datasets.glyph("K")
+levels = datasets.glyph_handles(letter)
+pins = np.concatenate(levels)
+middle, top = len(levels[0]), len(levels[0]) + len(levels[1])
+bend = pins.copy()
+bend[top:] = turned(pins[top:], pins[middle:top].mean(axis=0), 90)
+
+ways = {"paper's energy": (mvcjax.Weights.paper(), mvcjax.FixedG(iterations=100)),
+        "default": (mvcjax.Weights(), mvcjax.FixedG(iterations=30)),
+        "FoldFree": (mvcjax.Weights(), mvcjax.FoldFree())}
+fig, axes = plt.subplots(2, 3, figsize=(12, 8))
+for row, (shape, handles, targets) in enumerate([(sprite, sprite_handles, arm),
+                                                 (letter, pins, bend)]):
+    for ax, (name, (weights, solver)) in zip(axes[row], ways.items()):
+        posed_rig = mvcjax.Rig.build(shape, handles, weights=weights)
+        solved = posed_rig.deform(targets, solver)
+        plot.plot_deformation(posed_rig, solved, targets, ax=ax)
+        flipped = plot.plot_folds(posed_rig, solved, ax=ax)
+        ax.set_title(f"{name}: {flipped} flipped")
+        ax.axis("off")
+plt.show()

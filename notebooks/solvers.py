@@ -53,7 +53,7 @@ import mvcjax  # noqa: E402
 from mvcjax import datasets  # noqa: E402
 
 model = datasets.model("horse")
-rig = model.rig(dtype=jnp.float64)
+rig = model.rig(dtype=jnp.float64, weights=mvcjax.Weights.paper())  # the paper's energy
 targets = rig.handle_positions + jnp.asarray(model.drag)
 print(rig)
 

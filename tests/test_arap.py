@@ -10,7 +10,7 @@ import pytest
 import mvcjax
 from mvcjax import datasets
 
-ARAP_ONLY = dict(laplacian=0.0, mvc=0.0, length=0.0, arap=1.0)
+ARAP_ONLY = dict(laplacian=None, mvc=None, length=None, arap=1.0)
 
 
 def _small_full_rig(horse, handle, dtype=jnp.float64):
@@ -103,7 +103,9 @@ SOLVERS = [mvcjax.GaussNewton(max_steps=500), mvcjax.LevenbergMarquardt(max_step
 
 
 @pytest.mark.float64
-@pytest.mark.parametrize("weights", [ARAP_ONLY, dict(arap=10.0)], ids=["alone", "mixed"])
+@pytest.mark.parametrize("weights", [ARAP_ONLY, {}, dict(laplacian=1.0, mvc=1.0, length=1.0,
+                                                          arap=10.0)],
+                         ids=["alone", "default", "mixed"])
 @pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: type(s).__name__)
 def test_every_solver_reaches_fixed_gs_minimum(horse, weights, solver):
     # The term is declared once (rows, rest vectors, groups): the fixed-G local step,
@@ -124,11 +126,11 @@ def test_every_solver_reaches_fixed_gs_minimum(horse, weights, solver):
 @pytest.mark.float64
 def test_gradients_through_the_term_match_finite_differences(horse):
     rig = mvcjax.Rig.build(horse, datasets.horse_handles(), dtype=jnp.float64,
-                           weights=mvcjax.Weights(arap=10.0))
+                           weights=mvcjax.Weights(1.0, 1.0, 1.0, arap=10.0))
     targets = rig.handle_positions + datasets.horse_drag()
 
     def pose(t, arap):
-        posed = rig.with_weights(mvcjax.Weights(arap=arap))
+        posed = rig.with_weights(mvcjax.Weights(1.0, 1.0, 1.0, arap=arap))
         return jnp.sum(posed.deform(t)[::50] ** 2)
 
     arap = jnp.asarray(10.0)
@@ -157,9 +159,10 @@ def test_a_new_arap_weight_compiles_nothing_new(horse):
 
 # A power of two and a whole offset: Triangle then meshes the same numbers (its
 # refinement turns a last-bit difference into another mesh).
-@pytest.mark.parametrize("dtype", [jnp.float32, pytest.param(jnp.float64, marks=pytest.mark.float64)])
+@pytest.mark.parametrize("dtype", [jnp.float32,
+                                   pytest.param(jnp.float64, marks=pytest.mark.float64)])
 def test_arap_rigs_do_not_depend_on_where_the_shape_sits(horse, dtype):
-    weights = mvcjax.Weights(arap=10.0)
+    weights = mvcjax.Weights()
     offset = np.array([64.0, -32.0])
 
     def place(p):
@@ -178,10 +181,13 @@ def test_arap_rigs_do_not_depend_on_where_the_shape_sits(horse, dtype):
         rig.frame.scale)
 
 
-def test_the_term_in_a_stack_and_a_ladder(horse):
-    # A stack pads the control triangles with degenerate ones, whose rows are zero: each
-    # rig poses as alone. The size ladder does not pad the term: refused, with the fix.
-    weights = mvcjax.Weights(arap=10.0)
+@pytest.mark.parametrize("weights", [dict(arap=10.0),
+                                     dict()],
+                         ids=["mixed", "alone"])
+def test_the_term_in_a_stack_and_a_ladder(horse, weights):
+    # A stack pads the control triangles with degenerate ones, whose rows are zero, and
+    # a laddered rig's twin likewise: each rig poses as alone.
+    weights = mvcjax.Weights(**weights)
     shapes = [datasets.glyph(c) for c in "HK"]
     rigs = [mvcjax.Rig.build(s, np.concatenate(datasets.glyph_handles(s)), weights=weights)
             for s in shapes]
@@ -189,10 +195,56 @@ def test_the_term_in_a_stack_and_a_ladder(horse):
     targets = jnp.stack([r.handle_positions + jnp.asarray([[0.0, 30.0]] * 3 + [[0.0, 0.0]] * 3)
                          for r in rigs])
     posed = jax.vmap(lambda r, t: r.deform(t))(stack, targets)
-    for i, rig in enumerate(rigs):
+    for i, (shape, rig) in enumerate(zip(shapes, rigs)):
         alone = np.asarray(rig.deform(targets[i]))
-        assert np.abs(np.asarray(posed[i, :len(alone)]) - alone).max() < 1e-4 * float(
-            rig.frame.scale)
-    with pytest.raises(ValueError, match="without ladder="):
+        tolerance = 1e-4 * float(rig.frame.scale)
+        assert np.abs(np.asarray(posed[i, :len(alone)]) - alone).max() < tolerance
+        laddered = mvcjax.Rig.build(shape, np.concatenate(datasets.glyph_handles(shape)),
+                                    weights=weights, ladder=mvcjax.SizeLadder())
+        assert np.abs(np.asarray(laddered.deform(targets[i])) - alone).max() < tolerance
+        assert np.abs(alone - np.asarray(rig.shape_mesh.vertices)).max() > 10.0
+
+
+def test_stacks_and_ladders_need_the_mean_value_rows(horse):
+    weights = mvcjax.Weights(laplacian=None, mvc=None, length=None, arap=1.0)
+    rig = mvcjax.Rig.build(horse, datasets.horse_handles(), weights=weights)
+    with pytest.raises(ValueError, match=r"small one, as the default's, bends nothing"):
+        mvcjax.Rig.stack([rig, rig])
+    with pytest.raises(ValueError, match=r"small one, as the default's, bends nothing"):
         mvcjax.Rig.build(horse, datasets.horse_handles(), weights=weights,
                          ladder=mvcjax.SizeLadder())
+
+
+@pytest.mark.float64
+def test_with_weights_that_change_the_terms_rebuilds_the_rows(horse):
+    # From the paper's energy to the ARAP term and back: a rig rebuilt with other terms
+    # deforms as one built with them (its local rows made anew, not reused); under jit,
+    # where the rows cannot be made anew, the change is refused with the fix.
+    paper = mvcjax.Rig.build(horse, datasets.horse_handles(), dtype=jnp.float64,
+                             weights=mvcjax.Weights.paper())
+    rigid = mvcjax.Rig.build(horse, datasets.horse_handles(), dtype=jnp.float64)
+    targets = paper.handle_positions + datasets.horse_drag()
+    for start, goal, weights in [(paper, rigid, mvcjax.Weights()),
+                                 (rigid, paper, mvcjax.Weights.paper())]:
+        np.testing.assert_allclose(start.with_weights(weights).deform(targets),
+                                   goal.deform(targets), atol=1e-9 * float(paper.frame.scale))
+    with pytest.raises(ValueError, match="outside the transformation"):
+        jax.jit(lambda w: paper.with_weights(mvcjax.Weights(arap=w)).deform(targets))(1.0)
+
+
+def test_fold_free_on_the_default_energy_unfolds_what_it_folds():
+    # The character's right arm turned 180 degrees about the shoulder: the default
+    # energy's pose still folds a few triangles by the armpit (the control mesh's
+    # limit, libigl's ARAP on it folds there too); FoldFree, on the same energy, none.
+    model = datasets.model("character")
+    rig = mvcjax.Rig.build(model.shape, datasets.character_bones("arms"), **model.options)
+    targets = np.array(rig.handle_positions)
+    shoulder, wrist = targets[4], targets[5]
+    targets[5] = 2 * shoulder - wrist  # turned 180 degrees about the shoulder
+    mesh = rig.shape_mesh
+    folded = rig.deform(targets)
+    assert mvcjax.flipped_triangles(mesh.vertices, folded, mesh.faces) > 0  # the trap
+    unfolded, info = rig.deform(targets, mvcjax.FoldFree(), return_info=True)
+    assert mvcjax.flipped_triangles(mesh.vertices, unfolded, mesh.faces) == 0
+    assert int(info.inverted) == 0
+    assert float(info.handle_miss) < 0.05 * float(rig.frame.scale)

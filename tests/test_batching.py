@@ -41,9 +41,10 @@ def test_jit_of_the_bound_methods_works_and_compiles_once(horse_rig):
 
 
 def test_equal_rigs_hash_equal(horse, horse_rig):
-    again = mvcjax.Rig.build(horse, mvcjax.datasets.horse_handles(), dtype=jnp.float64)
+    again = mvcjax.Rig.build(horse, mvcjax.datasets.horse_handles(), dtype=jnp.float64,
+                             weights=mvcjax.Weights.paper())
     assert again == horse_rig and hash(again) == hash(horse_rig)
-    other = horse_rig.with_weights(mvcjax.Weights(length=3.0))
+    other = horse_rig.with_weights(mvcjax.Weights.paper(length=3.0))
     assert other != horse_rig  # same structure, other values: same bucket, not equal
     assert hash(other) == hash(horse_rig)
 
@@ -202,7 +203,7 @@ def test_blocks_hold_the_rows_exactly(horse_rig):
 def test_a_batch_of_rigs_falls_back_to_jax_batching(horse_rig):
     # Rules are written for frames of one rig; rigs batched with their targets (here two
     # term weightings) are batched by JAX, and agree with each rig alone.
-    rigs = [horse_rig, horse_rig.with_weights(mvcjax.Weights(length=4.0))]
+    rigs = [horse_rig, horse_rig.with_weights(mvcjax.Weights.paper(length=4.0))]
     both = jax.tree.map(lambda *x: jnp.stack(x), *rigs)
     frames = some_frames(horse_rig, 2, seed=2)
     out = jax.vmap(lambda r, t: r.deform(t))(both, frames)

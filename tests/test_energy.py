@@ -95,7 +95,7 @@ def test_a_single_term_deforms_without_nan(horse, dtype, zeros):
     # Laplacian-only or mean-value-only deformation leaves some vertices free; the
     # tie-break keeps the minimum unique, the rest pose at rest and a drag finite.
     rig = mvcjax.Rig.build(horse, mvcjax.datasets.horse_handles(), dtype=dtype)
-    rig = rig.with_weights(mvcjax.Weights(**zeros))
+    rig = rig.with_weights(mvcjax.Weights.paper(**zeros))
     diagonal = float(np.linalg.norm(np.ptp(np.asarray(rig.shape_mesh.vertices), axis=0)))
     rest = np.asarray(rig.deform(rig.handle_positions, init="rest"))
     np.testing.assert_allclose(rest, np.asarray(rig.shape_mesh.vertices),
@@ -114,7 +114,7 @@ def test_the_tie_break_is_small_where_a_term_is_zero(horse_rig):
     # With the edge lengths on, a zero Laplacian or mean value weight changes the pose
     # by the tie-break alone: its energy, in the user's weights, is within a hair of
     # the tie-free minimum (found from it by scipy on the energy with those weights).
-    rig = horse_rig.with_weights(mvcjax.Weights(mvc=0))
+    rig = horse_rig.with_weights(mvcjax.Weights.paper(mvc=0))
     t = drag(rig, [[20.0, 5.0]] + [[0.0, 0.0]] * 4)
     v = rig.solve(t, mvcjax.GaussNewton(rtol=1e-12, atol=1e-12))
     energy = jax.jit(lambda x: rig.energy_at(x.reshape(-1, 2), t))

@@ -59,7 +59,7 @@ def test_vmap_through_the_sparse_solve(small_full):
 
 
 def test_new_weights_refactor_the_sparse_factor(ring_shape, small_full):
-    weights = mvcjax.Weights(laplacian=2.0, length=0.5, handle=30.0)
+    weights = mvcjax.Weights(handle=30.0, arap=0.5)
     built = mvcjax.Rig.build(ring_shape, [[35.0, 0.0], [-35.0, 0.0]], control=mvcjax.FullSolve(),
                              shape_spacing=9.0, factor=mvcjax.advanced.SparseLU(), weights=weights,
                              dtype=jnp.float64)
@@ -92,10 +92,9 @@ def test_factors_as_lineax_operators_and_solvers(small_full, kind):
     normal, inverse = factor.normal_operator(), factor.normal_inverse_operator()
     assert lx.is_symmetric(normal) and lx.is_positive_semidefinite(inverse)
     n = small_full.energy.num_vertices
-    w = small_full.energy.weights.normalised()
+    terms = small_full.energy.terms(normalised=True)
     ops = sparse_operators(small_full.energy)
-    expected = sum(float(t) * (op.T @ op).toarray() for t, op in
-                   zip((w.laplacian, w.mvc, w.length, w.handle), ops))
+    expected = sum(float(t.weight) * (op.T @ op).toarray() for t, op in zip(terms, ops))
     x = jax.random.normal(jax.random.key(7), (2, n), jnp.float64)
     np.testing.assert_allclose(normal.mv(x), x @ expected, rtol=1e-9,
                                atol=1e-9 * np.abs(expected).max())
@@ -139,7 +138,7 @@ def test_factors_are_blind_to_the_weights_overall_scale(small_full):
     # weights so that their rounding does not either (1e-30 squared underflowed).
     energy = small_full.energy
     tiny = eqx.tree_at(lambda e: e.weights, energy,
-                       mvcjax.Weights(1e-30, 1e-30, 1e-30, 1e-28).astype(jnp.float64))
+                       jax.tree.map(lambda w: 1e-30 * w, energy.weights))
     targets, v = local_point(small_full, [[10.0, 5.0], [0.0, -3.0]], 1e-2)
     for make in (mvcjax.advanced.DenseG(), mvcjax.advanced.SparseLU()):
         a, b = make(energy), make(tiny)
@@ -153,7 +152,7 @@ def test_scaling_all_weights_under_jit_and_grad_changes_nothing(horse_rig):
     targets = drag(horse_rig, np.zeros((horse_rig.handle_positions.shape[0], 2)) + 5.0)
 
     def loss(s):
-        weights = mvcjax.Weights(s, s, s, 100.0 * s)
+        weights = mvcjax.Weights.paper(laplacian=s, mvc=s, length=s, handle=100.0 * s)
         return jnp.sum(horse_rig.with_weights(weights).deform(targets)[::50] ** 2)
 
     value, grad = jax.jit(jax.value_and_grad(loss))(jnp.asarray(3.0))
@@ -161,7 +160,9 @@ def test_scaling_all_weights_under_jit_and_grad_changes_nothing(horse_rig):
     assert abs(float(grad)) < 1e-9 * float(value)
 
 
-@pytest.mark.parametrize("weights", [mvcjax.Weights(), mvcjax.Weights(laplacian=3.0, length=0.5)])
+@pytest.mark.parametrize("weights", [mvcjax.Weights(),
+                                     mvcjax.Weights.paper(laplacian=3.0, length=0.5)],
+                         ids=["default", "paper"])
 def test_steps_of_many_frames_match_single_steps(ring_shape, weights):
     # step_frames applies N^{-1} to A^T W b gathered through the spread table, where step
     # applies G: the same map. On a control mesh with a hole, inner and polygon vertices.

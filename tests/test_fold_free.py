@@ -17,14 +17,16 @@ from conftest import directional_derivatives
 pytestmark = pytest.mark.float64
 
 
-def _arm_rig(dtype=jnp.float64):
+def _arm_rig(dtype=jnp.float64, weights=None):
     """The character with a bone per arm (shoulder to wrist): target rows 2-3 are the
-    right arm's bone, 4-5 the left's."""
+    right arm's bone, 4-5 the left's. With the paper's energy, whose minimum folds the
+    raised arm: the trap the barriers are tested on (the default energy's does not)."""
     h = datasets.character_handles()
     shoulders = np.asarray(datasets._SHOULDERS)
     handles = [tuple(h[0]), tuple(h[1]), mvcjax.Bone(shoulders[1], h[3]),
                mvcjax.Bone(shoulders[0], h[2]), tuple(h[4]), tuple(h[5])]
-    return mvcjax.Rig.build(datasets.character(), handles, dtype=dtype)
+    return mvcjax.Rig.build(datasets.character(), handles, dtype=dtype,
+                            weights=weights or mvcjax.Weights.paper())
 
 
 @pytest.fixture(scope="module")
@@ -70,15 +72,16 @@ def test_a_gentle_pose_is_the_plain_minimum(horse_rig):
 
 
 def test_targets_that_need_a_fold_are_missed_and_said_so(arm_rig):
-    # The right hand pushed through the torso to the far side of the body.
+    # The right hand pushed through the torso to the far side of the body: the plain
+    # solve gets there by folding, FoldFree stops short and says by how much.
     targets = np.array(arm_rig.handle_positions)
     targets[3] = [-40.0, 110.0]
     control, info = arm_rig.solve(jnp.asarray(targets), mvcjax.FoldFree(), return_info=True)
     assert int(info.inverted) == 0
     assert shape_flips(arm_rig, arm_rig.skin(control)) == 0
-    assert float(info.handle_miss) > 5.0
     plain = arm_rig.solve(jnp.asarray(targets), mvcjax.GaussNewton(), return_info=True)[1]
-    assert float(plain.handle_miss) < float(info.handle_miss)
+    assert int(plain.inverted) > 0
+    assert float(info.handle_miss) > 10 * float(plain.handle_miss)
 
 
 def test_a_folded_start_is_replaced(arm_rig):
@@ -124,7 +127,7 @@ def test_gradients_match_finite_differences(arm_rig):
     assert exact == pytest.approx(approx, rel=1e-4)
 
     def of_length_weight(w):
-        rig = arm_rig.with_weights(mvcjax.Weights(length=w))
+        rig = arm_rig.with_weights(mvcjax.Weights.paper(length=w))
         return jnp.sum(weights * rig.deform(targets, solver))
 
     w = jnp.asarray(1.0)
@@ -173,7 +176,8 @@ def test_largest_safe_step_is_where_a_triangle_flattens():
 # The default start and solver: the unfolded minimum, where the paper's fixed-G from
 # rest stops short of it.
 @pytest.mark.parametrize("degrees", [60, 120])
-def test_the_default_reaches_the_minimum_of_a_raised_arm(arm_rig, degrees):
+def test_the_default_reaches_the_minimum_of_a_raised_arm(degrees):
+    arm_rig = _arm_rig(weights=mvcjax.Weights())  # the default energy
     targets = raised(arm_rig, degrees)
     best = min(float(arm_rig.deform(targets, s, return_info=True)[1].energy)
                for s in (mvcjax.GaussNewton(), mvcjax.LevenbergMarquardt()))
@@ -181,7 +185,7 @@ def test_the_default_reaches_the_minimum_of_a_raised_arm(arm_rig, degrees):
     paper = float(arm_rig.deform(targets, mvcjax.FixedG(), init="rest",
                                  return_info=True)[1].energy)
     assert default <= 1.02 * best
-    assert paper > 1.1 * best  # what the default is for
+    assert paper > 1.02 * best  # what the default is for: it stops short
 
 
 def test_the_turned_start_turns_the_bone(arm_rig):

@@ -16,7 +16,7 @@ pytestmark = pytest.mark.float64
 
 @pytest.fixture(scope="module")
 def problem(horse_rig):
-    weights = mvcjax.Weights(laplacian=2.0, mvc=0.5, length=3.0, handle=40.0)
+    weights = mvcjax.Weights.paper(laplacian=2.0, mvc=0.5, length=3.0, handle=40.0)
     rig = horse_rig.with_weights(weights)
     targets, vertices = local_point(rig, [[60.0, -10.0]] + [[0.0, 0.0]] * 4, 2e-3, seed=1)
     return ScaledProblem(rig.energy, targets), vertices

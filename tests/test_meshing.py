@@ -37,6 +37,23 @@ def test_control_polygon_never_bridges_a_gap(gap):
         assert not polygon.covers(shapely.Point(10 + gap / 2, y))
 
 
+@pytest.mark.parametrize("scale", [1.0, 2.0**-12])
+def test_the_control_polygon_honours_its_spacing_on_straight_sides(scale):
+    # The straight snake's offset has two long straight sides, one edge each; a limb
+    # with one polygon edge a side cannot bend, whatever the energy.
+    from mvcjax import datasets
+
+    shape = mvcjax.Shape.from_polygon(np.asarray(datasets.snake().outer) * scale)
+    spacing = 11.0 * scale
+    loops = control_polygon(shape, margin=spacing / 3, spacing=spacing)
+    ring = loops[0]
+    edges = np.linalg.norm(np.roll(ring, -1, axis=0) - ring, axis=1)
+    assert edges.max() <= spacing * (1 + 1e-9)
+    assert len(ring) >= 2 * 400 / 11  # both long sides, split
+    polygon = shapely.Polygon(ring)
+    assert polygon.is_valid and polygon.contains(shape.polygon)
+
+
 def test_horse_control_mesh_keeps_the_front_legs_apart(horse_rig32, horse):
     region = control_region(horse_rig32)
     assert region.covers(horse.polygon)
@@ -72,17 +89,21 @@ def test_holes_are_respected(ring_shape):
 @pytest.mark.float64
 def test_close_parts_move_independently(horse):
     """One front hoof dragged: the other follows as in the full solve on the shape mesh,
-    not as with a control polygon from a plain offset, whose triangles bridge the slot."""
+    not as with a control polygon from a plain offset, whose triangles bridge the slot.
+    With the paper's energy: the as-rigid-as-possible energy's coarse control triangles
+    carry the other hoof further on any control polygon (`docs/folds.md`)."""
     handles = np.array([[280.0, 20], [62, 20], [125, 27], [200, 230], [372, 238], [262, 95]])
-    ours = mvcjax.Rig.build(horse, handles)
-    coarse = mvcjax.Rig.build(horse, handles, shape_spacing=10.0)
-    full = mvcjax.Rig.build(horse, handles, shape_spacing=10.0, control=mvcjax.GivenControl(
-        np.asarray(coarse.shape_mesh.vertices), np.asarray(coarse.shape_mesh.faces)))
+    paper = mvcjax.Weights.paper()
+    ours = mvcjax.Rig.build(horse, handles, weights=paper)
+    coarse = mvcjax.Rig.build(horse, handles, shape_spacing=10.0, weights=paper)
+    full = mvcjax.Rig.build(horse, handles, shape_spacing=10.0, weights=paper,
+                            control=mvcjax.GivenControl(np.asarray(coarse.shape_mesh.vertices),
+                                                        np.asarray(coarse.shape_mesh.faces)))
     # A control polygon from a plain offset, simplified to the control spacing by shapely.
     offset = horse.polygon.buffer(3.0).exterior.simplify(1.0)
     loop = np.asarray(shapely.segmentize(offset, 26.0).coords)[:-1]
     cm = ours.control_mesh
-    bridged = mvcjax.Rig.build(horse, handles, control=mvcjax.GivenControl(
+    bridged = mvcjax.Rig.build(horse, handles, weights=paper, control=mvcjax.GivenControl(
         *triangulate_control([loop], np.asarray(cm.vertices[cm.inner]))))
     assert shapely.Polygon(loop).covers(shapely.Point(260.5, 40.0))  # it does bridge
 

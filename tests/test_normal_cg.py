@@ -174,11 +174,17 @@ def test_deflated_conjugate_gradient_edge_cases():
     np.testing.assert_allclose(x, plain, rtol=1e-12, atol=1e-14)
 
 
-@pytest.fixture(scope="module")
-def gauss_newton(horse_rig):
+@pytest.fixture(scope="module", params=["paper", "arap", "mixed"])
+def gauss_newton(horse_rig, request):
     # The structured matrix at a dragged, perturbed point, and the residuals' own
-    # linearisation there (jax.linearize and its transpose), the reference.
-    weights = mvcjax.Weights(laplacian=2.0, mvc=0.5, length=3.0, handle=40.0)
+    # linearisation there (jax.linearize and its transpose), the reference: for the
+    # paper's turned rows, the as-rigid-as-possible term's rotations shared by pairs of
+    # rows, and both.
+    weights = {
+        "paper": mvcjax.Weights.paper(laplacian=2.0, mvc=0.5, length=3.0, handle=40.0),
+        "arap": mvcjax.Weights(mvc=0.5, handle=40.0, arap=3.0),
+        "mixed": mvcjax.Weights(2.0, 0.5, 3.0, 40.0, arap=5.0),
+    }[request.param]
     rig = horse_rig.with_weights(weights)
     targets, start = local_point(rig, [[60.0, -10.0]] + [[0.0, 0.0]] * 4, 1e-3, seed=3)
     problem = ScaledProblem(rig.energy, targets)

@@ -62,7 +62,7 @@ def test_handle_weight_makes_handles_land(horse_rig):
     targets = drag(horse_rig, [[60.0, 0.0], [0, 0], [0, 0], [0, 0], [0, 0]])
     solver = mvcjax.FixedG(iterations=3000, anderson=5, stop_early=True)
     misses = []
-    for weights in [mvcjax.Weights(handle=1.0), mvcjax.Weights()]:
+    for weights in [mvcjax.Weights.paper(handle=1.0), mvcjax.Weights.paper()]:
         rig = horse_rig.with_weights(weights)
         out = rig.deform(targets, solver)
         misses.append(float(jnp.linalg.norm(out[rig.shape_mesh.handles] - targets, axis=1).max()))
@@ -105,12 +105,12 @@ def test_new_targets_or_weights_never_recompile(horse_rig32, solver):
 
     deform(horse_rig32, horse_rig32.handle_positions)
     deform(horse_rig32, drag(horse_rig32, np.ones((5, 2))))
-    deform(horse_rig32.with_weights(mvcjax.Weights(laplacian=2.0, handle=50.0)),
+    deform(horse_rig32.with_weights(mvcjax.Weights(handle=50.0, arap=2.0)),
            drag(horse_rig32, 3 * np.ones((5, 2))))
     assert len(traces) == 1
     with_weights = jax.jit(lambda r, w: r.with_weights(w))
     with_weights(horse_rig32, mvcjax.Weights(mvc=3.0))
-    with_weights(horse_rig32, mvcjax.Weights(mvc=4.0, length=0.5))
+    with_weights(horse_rig32, mvcjax.Weights(mvc=4.0, arap=0.5))
     assert with_weights._cache_size() == 1
 
 

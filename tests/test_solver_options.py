@@ -69,7 +69,7 @@ def test_jaxopt_options_are_checked(solver):
 
 
 @pytest.mark.parametrize("kwargs, message", [
-    (dict(laplacian=0.0, mvc=0.0, length=0.0), "at least one shape term"),
+    (dict(laplacian=None, arap=None), "corners that no edge-length row reaches"),
     (dict(handle=1e-30), "ratio"),
     (dict(length=1e20), "ratio"),
     (dict(handle=1e30), "ratio"),
@@ -81,10 +81,20 @@ def test_degenerate_weights_are_refused(kwargs, message):
         mvcjax.Weights(**kwargs)
 
 
-def test_weights_of_any_overall_scale_solve_alike(stick, stick_targets):
+def test_a_rig_refuses_weights_that_hold_nothing_but_the_handles(stick):
+    with pytest.raises(ValueError, match="at least one shape term"):
+        datasets.model("stick").rig(weights=mvcjax.Weights(0.0, 0.0, 0.0, arap=None))
+    with pytest.raises(ValueError, match="at least one shape term"):
+        stick.with_weights(mvcjax.Weights(0.0, 0.0, 0.0, arap=None))
+
+
+@pytest.mark.parametrize("tiny", [mvcjax.Weights(mvc=1e-34, handle=1e-28, arap=1e-30),
+                                  mvcjax.Weights(1e-30, 1e-30, 1e-30, 1e-28, arap=None)],
+                         ids=["default", "paper"])
+def test_weights_of_any_overall_scale_solve_alike(stick, stick_targets, tiny):
     # At 1e-30 everywhere optimistix stopped after one step and reported convergence:
     # its absolute tolerance saw residuals scaled by 1e-15.
-    tiny = mvcjax.Weights(1e-30, 1e-30, 1e-30, 1e-28)
+    stick = stick.with_weights(jax.tree.map(lambda w: w * 1e30, tiny))
     for solver in [mvcjax.GaussNewton(), mvcjax.FixedG(iterations=50)]:
         plain, info = stick.solve(stick_targets, solver, return_info=True)
         scaled, scaled_info = stick.with_weights(tiny).solve(stick_targets, solver,

@@ -213,14 +213,14 @@ def test_jaxopt_does_not_warn_users():
 @pytest.fixture(scope="module")
 def stick_gradients():
     """A loss of the deformed stick, its targets, and its gradients with respect to the
-    targets and to the log of the length weight, by central finite differences and by
+    targets and to the log of the ARAP weight, by central finite differences and by
     the unrolled fixed-G iteration solved to convergence."""
     model = mvcjax.datasets.model("stick")
     rig = model.rig(dtype=jnp.float64)
     targets = rig.handle_positions + 0.5 * jnp.asarray(model.drag)
 
-    def loss(solver, t, log_length):
-        r = rig.with_weights(mvcjax.Weights(length=jnp.exp(log_length)))
+    def loss(solver, t, log_weight):
+        r = rig.with_weights(mvcjax.Weights(arap=jnp.exp(log_weight)))
         return jnp.sum(r.deform(t, solver)[::5] ** 2) / 1e4
 
     direction = jax.random.normal(jax.random.key(0), targets.shape, targets.dtype)
@@ -319,7 +319,10 @@ def test_energy_history_ends_where_the_solve_does(horse_rig, solver):
     assert np.all(np.diff(np.asarray(history)) <= 1e-12 * float(history[0]))
 
 
-def test_anderson_reaches_an_energy_gap_of_1e6_in_a_tenth_of_the_steps(horse_rig):
+def test_anderson_reaches_an_energy_gap_of_1e6_in_a_tenth_of_the_steps(horse):
+    # On the default energy (on the paper's, at this drag, plain steps settle at another
+    # stationary point, above the one Anderson's reach).
+    horse_rig = mvcjax.Rig.build(horse, datasets.horse_handles(), dtype=jnp.float64)
     targets = targets_for(horse_rig, 0, [60.0, 0.0])
     plain = np.asarray(jax.jit(
         lambda t: horse_rig.energy_history(t, mvcjax.FixedG(), 4000))(targets))
@@ -418,7 +421,8 @@ def test_optimistix_solvers_in_float32(horse, horse_rig, solve, solver):
     # made its norms float64 there and failed; every solver converges to float32's
     # tolerance near the float64 minimum. Float32 resolves the energy to about 1e-6;
     # where it is this flat, that leaves the vertices about 1e-3 of the diagonal to move.
-    rig32 = mvcjax.Rig.build(horse, datasets.horse_handles(), dtype=jnp.float32)
+    rig32 = mvcjax.Rig.build(horse, datasets.horse_handles(), dtype=jnp.float32,
+                             weights=mvcjax.Weights.paper())
     handle, offset = AGREEING[0]
     vertices, info = jax.jit(lambda t: rig32.solve(t, solver, return_info=True))(
         targets_for(rig32, handle, offset))

@@ -6,16 +6,17 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Complex, Float, Int
 
 from .._energy import NORMAL_WEIGHT, Energy, total_energy
 from .._stencils import (
+    Blocks,
     Stencil,
     apply_stencils,
     apply_stencils_transpose,
     group_sum,
     length_scale,
+    merge_blocks,
 )
 from ._base import SolveInfo, converged_and_finite
 
@@ -64,7 +65,7 @@ class ScaledProblem(eqx.Module):
         length: `(m,)` their rest lengths, in scaled units (zero for the handles).
         rotation: `(m,)` their rest vectors, in scaled units, where a term is rotated
             (its rows turn together, `Term.rotated`); None otherwise.
-        group: `(m,)` the rotation each row shares, where `rotation` is given.
+        blocks: how the rows share rotations (`Blocks`), where `rotation` is given.
         offset: `(m,)` what each stencil is measured from (the handle targets, scaled).
         row_weight: `(m,)` the square root of each stencil's weight (`Weights.normalised`).
         linear_rows, linear_coef: `(g, k)` the linear terms' rows, their coefficients
@@ -81,7 +82,7 @@ class ScaledProblem(eqx.Module):
     linear_rows: Int[Array, "g k"]
     linear_coef: Float[Array, "g k"]
     rotation: Complex[Array, " m"] | None
-    group: Int[Array, " m"] | None
+    blocks: Blocks | None = eqx.field(static=True)
 
     def __init__(self, energy: Energy, targets: Float[Array, "h 2"]):
         self.energy = energy
@@ -99,13 +100,9 @@ class ScaledProblem(eqx.Module):
             t.local_rest() / energy.scale if t.is_local else jnp.zeros(t.count, dtype)
             for t in narrow])
         self.length = jnp.abs(rest).astype(dtype)
-        self.rotation, self.group = None, None
-        if any(t.group is not None for t in narrow):
-            offsets = np.cumsum([0, *(t.count for t in narrow)])
-            self.rotation = rest
-            self.group = jnp.concatenate([
-                (t.local_group() if t.is_local else jnp.arange(t.count)) + o
-                for t, o in zip(narrow, offsets)])
+        blocks = merge_blocks(sum((t.blocks() for t in narrow), ()))
+        rotated = any(group > 1 for _, group in blocks)
+        self.rotation, self.blocks = (rest, blocks) if rotated else (None, None)
         # A row that pins nothing (coefficients zero, target zero) is measured from zero
         # too, not from the centring's shift: its residual is then zero, not a constant
         # that would count in the tolerances.
@@ -115,9 +112,10 @@ class ScaledProblem(eqx.Module):
             for t in narrow])
         self.row_weight = jnp.sqrt(jnp.concatenate([
             jnp.broadcast_to(t.weight, (t.count,)) for t in narrow]).astype(dtype))
-        linear = Stencil.concatenate(*(
-            Stencil(t.stencil.rows, jnp.sqrt(t.weight).astype(dtype) * t.stencil.coef)
-            for t in terms if not t.is_local and not t.pinned))
+        linear = Stencil.concatenate(
+            Stencil(jnp.zeros((0, 1), jnp.int32), jnp.zeros((0, 1), dtype)),  # none given
+            *(Stencil(t.stencil.rows, jnp.sqrt(t.weight).astype(dtype) * t.stencil.coef)
+              for t in terms if not t.is_local and not t.pinned))
         self.linear_rows, self.linear_coef = linear.rows, linear.coef
 
     def scaled(self, vertices: Float[Array, "n 2"]) -> Float[Array, "2 n"]:
@@ -148,7 +146,7 @@ class ScaledProblem(eqx.Module):
         # one (handles, measured from the scaled targets), so the centring drops out.
         v = self.stencils(y) - self.offset
         weight = self.row_weight**2
-        if self.group is None:
+        if self.rotation is None:
             squared = jnp.real(v) ** 2 + jnp.imag(v) ** 2
             scale = length_scale(squared, self.length)
             turned = scale * v
@@ -158,13 +156,13 @@ class ScaledProblem(eqx.Module):
             # A group's rotation u = S / |S| fits S = sum_r v_r conj(c_r); turning it by
             # a small angle moves each target by i u c_r, and the Gauss-Newton matrix
             # loses (2 |S| - sum_r |c_r|^2) / |S|^2 along that angle's derivative.
-            fit = group_sum(v * jnp.conj(self.rotation), self.group)
+            fit = group_sum(v * jnp.conj(self.rotation), self.blocks)
             squared = jnp.real(fit) ** 2 + jnp.imag(fit) ** 2
             inverse = length_scale(squared, 1.0)
-            turned = (fit * inverse)[self.group] * self.rotation
+            turned = fit * inverse * self.rotation
             turn = 1j * turned
-            mass = group_sum(self.length**2, self.group)
-            softness = weight * ((2 * squared * inverse - mass) * inverse**2)[self.group]
+            mass = group_sum(self.length**2, self.blocks)
+            softness = weight * (2 * squared * inverse - mass) * inverse**2
         mvc = apply_stencils(self.linear_rows, self.linear_coef, y)
         r = jnp.concatenate([self.row_weight * (v - turned), mvc])
         return Linearisation(
@@ -175,7 +173,7 @@ class ScaledProblem(eqx.Module):
         """How far the stencils of `x` turn each row's rotation, along `turn`: each
         row's own, or summed over its group's rows where rows turn together."""
         across = jnp.real(jnp.conj(turn) * self.stencils(x))
-        return across if self.group is None else group_sum(across, self.group)[self.group]
+        return across if self.rotation is None else group_sum(across, self.blocks)
 
     def energy_at(self, y: Float[Array, "2 n"]) -> Float[Array, ""]:
         """The energy (6) at `y`, by `mvcjax.advanced.total_energy` (what solvers report)."""
