@@ -13,7 +13,7 @@ they do not depend on where the shape sits):
   45 and 90 degrees about the hip;
 - sprite: a figure drawn with Pillow at run time (`datasets.sprite()`: a `Bone` per
   limb, points on the chest and the toes): both arms raised overhead (150 and 170
-  degrees), and the right arm alone raised 60 and 90 degrees;
+  degrees), and the right arm alone raised 60, 90 and 150 degrees;
 - horse: `datasets.horse()` with its hind hooves, back and head as points and a `Bone`
   from the right front knee to the hoof, the hoof curled back under the body 60 to 120
   degrees about the knee;
@@ -33,18 +33,18 @@ energy (and its ratio to the lowest any unconstrained solver found), the largest
 miss (user units and percent of the rest diagonal), the steps and the time per frame.
 The solvers:
 
-- `default`: `rig.deform(targets)`, whatever the library's default is;
-- `paper`: `FixedG()` from `init="rest"`, the paper's 15 iterations;
+- `default`: `rig.deform(targets)`, whatever the library's default is (its energy, the
+  rig's default weights, is the one every solver below solves but the paper's two);
+- `paper`: the paper's energy (`Weights.paper()`) by `FixedG()` from `init="rest"`, the
+  paper's 15 iterations;
+- `paper_default`: the paper's energy by `FixedG(iterations=100)` from the default start
+  (mvcjax's default before the as-rigid-as-possible energy); the two paper rows solve
+  another energy, so their energies are reported without a ratio to the lowest;
 - the unconstrained solvers `GaussNewton()`, `Dogleg()`, `LevenbergMarquardt()` and
   `FixedG(anderson=5, iterations=300, stop_early=True)` ("anderson"), from the default
   start;
 - `FoldFree()` (where mvcjax has it);
-- the as-rigid-as-possible term on the control mesh (`Weights(arap=...)`, a rotation per
-  control triangle): alone (`Weights(0, 0, 0, arap=1)`) by `FixedG()` (15 steps from the
-  default start: the paper's cost) and by `GaussNewton()`, and mixed into the paper's
-  energy (`Weights(arap=10)`, the default solver); their energies are of another
-  energy, reported without a ratio to the paper's;
-- `full`: the same energy solved on the shape mesh itself (`control=FullSolve()`, same
+- `full`: the default energy solved on the shape mesh itself (`control=FullSolve()`, same
   shape spacing and bone samples: the same shape mesh, checked) by `GaussNewton()` (it
   converges in tens of steps; `FixedG(anderson=5, iterations=2000, stop_early=True)` is
   far slower there and stops short); its energy is on another mesh, reported but not
@@ -52,7 +52,11 @@ The solvers:
 - `arap`: libigl's ARAP on the rig's shape mesh with the same pinned vertices and
   targets, `--arap-iterations` local-global steps (100 by default) from the full rig's
   default start (`full.start(targets)`); its energy is the full mesh's energy (6) at its
-  result.
+  result;
+- `arap_control`: libigl's ARAP on the rig's control mesh, its pinned control vertices
+  held at the pinned targets, as many steps from the rig's default start
+  (`rig.start(targets)`), carried to the shape mesh by the rig's own skinning
+  (`rig.skin`): what the control mesh and its skinning allow an ARAP energy.
 
 The criterion (raise an arm without turning it inside out), recorded per pose:
 where any unconstrained solver reaches a pose with no flipped shape triangle, the
@@ -83,25 +87,23 @@ from _peer import arap as igl_arap, igl_or_none, igl_version
 from _timing import compile_ms, interleaved_median_ms, median_ms, spacing_for, write_results
 
 UNCONSTRAINED = ("gauss_newton", "dogleg", "levenberg_marquardt", "anderson")
-# The as-rigid-as-possible energy on the control mesh (`Weights(arap=...)`): alone, by
-# the paper's 15 fixed-G steps and by Gauss-Newton, and mixed into the paper's energy.
-RIGID = ("arap_fixed_g", "arap_gauss_newton", "arap_mix")
-CONTROL_SOLVERS = ("default", "paper", *UNCONSTRAINED, "fold_free", *RIGID)
+# The rows that solve the paper's energy (`Weights.paper()`), not the rig's default.
+PAPER = ("paper", "paper_default")
+CONTROL_SOLVERS = ("default", *PAPER, *UNCONSTRAINED, "fold_free")
 LABELS = {
     "default": "default",
-    "paper": "FixedG() rest",
+    "paper": "paper FixedG() rest",
+    "paper_default": "paper FixedG(100)",
     "gauss_newton": "GaussNewton",
     "dogleg": "Dogleg",
     "levenberg_marquardt": "LM",
     "anderson": "Anderson",
     "fold_free": "FoldFree",
-    "arap_fixed_g": "ARAP term FixedG",
-    "arap_gauss_newton": "ARAP term GN",
-    "arap_mix": "paper + ARAP term",
     "full": "full solve",
     "arap": "ARAP",
+    "arap_control": "ARAP control",
 }
-QUICK_SOLVERS = ("default", "paper", "gauss_newton", "fold_free", *RIGID, "arap")
+QUICK_SOLVERS = ("default", *PAPER, "gauss_newton", "fold_free", "arap", "arap_control")
 # Timed as users call them, `rig.deform(targets, ...)`, in a program of their own; the
 # others (slower solvers) are timed with `return_info=True`, which adds the info's
 # energy, fold count and handle miss (little against their solve): one compilation
@@ -116,8 +118,8 @@ FOLD_FREE_TARGET = 3.0  # FoldFree's time per frame over GaussNewton's
 ENERGY_FLOOR = 1e-8
 QUICK_POSES = ("character-arm-90", "character-arm-180", "character-squash-0.5",
                "sprite-overhead-170", "glyph-K-bend-90")
-FIGURE_POSES = ("character-arm-180", "sprite-overhead-170", "horse-curl-120", "snake-curl-270",
-                "glyph-K-bend-90")
+FIGURE_POSES = ("character-arm-180", "sprite-arm-150", "sprite-overhead-170", "horse-curl-120",
+                "snake-curl-270", "glyph-K-bend-90")
 
 
 # ---- poses ------------------------------------------------------------------------------
@@ -229,7 +231,7 @@ def families(quick: bool) -> list[Family]:
                [Pose(f"sprite-overhead-{a}", f"sprite: both arms raised {a} deg, overhead", a,
                      _overhead(a)) for a in (150, 170)]
                + [Pose(f"sprite-arm-{a}", f"sprite: right arm raised {a} deg", a,
-                       _overhead(a, both=False)) for a in (60, 90)]),
+                       _overhead(a, both=False)) for a in (60, 90, 150)]),
         Family("horse", lambda: sized(*_horse()),
                [Pose(f"horse-curl-{a}", f"horse: front hoof curled back {a} deg about the "
                      "knee", a, _curl_leg(a)) for a in (60, 90, 120)]),
@@ -280,9 +282,11 @@ def control_solvers(names) -> dict:
     or None for the rig's)` for the control-mesh solvers that this mvcjax has."""
     import mvcjax
 
+    paper = mvcjax.Weights.paper()
     table = {
         "default": (None, None, None),
-        "paper": (mvcjax.FixedG(), "rest", None),
+        "paper": (mvcjax.FixedG(), "rest", paper),
+        "paper_default": (mvcjax.FixedG(iterations=100), None, paper),
         "gauss_newton": (mvcjax.GaussNewton(), None, None),
         "dogleg": (mvcjax.Dogleg(), None, None),
         "levenberg_marquardt": (mvcjax.LevenbergMarquardt(), None, None),
@@ -291,13 +295,6 @@ def control_solvers(names) -> dict:
     fold_free = getattr(mvcjax, "FoldFree", None)
     if fold_free is not None:
         table["fold_free"] = (fold_free(), None, None)
-    try:
-        rigid = mvcjax.Weights(laplacian=0.0, mvc=0.0, length=0.0, arap=1.0)
-        table["arap_fixed_g"] = (mvcjax.FixedG(), None, rigid)
-        table["arap_gauss_newton"] = (mvcjax.GaussNewton(), None, rigid)
-        table["arap_mix"] = (None, None, mvcjax.Weights(arap=10.0))
-    except TypeError:  # an mvcjax without the term
-        pass
     return {k: v for k, v in table.items() if k in names}
 
 
@@ -352,7 +349,11 @@ def measure_family(family: Family, names, dtype, repeats: int, igl, arap_iterati
             errors[name] = f"{type(e).__name__}: {e}"
             log(f"  {name}: {errors[name]}")
 
-    full = arap = None
+    full = arap = arap_control = None
+    if "arap_control" in names and igl is not None:
+        _, arap_control = igl_arap(igl, rig.control_mesh, arap_iterations)
+        control_start, skin = jax.jit(rig.start), jax.jit(rig.skin)
+        control_pinned = jax.jit(rig.pinned_targets)
     if "full" in names or "arap" in names:
         # The same shape mesh: the same spacing, and bones pinned at the same points.
         spacing = getattr(options.get("control"), "spacing", None)
@@ -445,6 +446,10 @@ def measure_family(family: Family, names, dtype, repeats: int, igl, arap_iterati
                 "precompute_s": arap_precompute_s,
                 "frame_ms": median_ms(arap, [(pinned, start)], 3),
             }
+        if arap_control is not None:
+            row["solvers"]["arap_control"] = _control_arap_row(
+                rig, arap_control, skin, np.asarray(control_pinned(targets), np.float64),
+                np.asarray(control_start(targets), np.float64), arap_iterations, diagonal)
         summarise(row)
         rows.append(row)
         log(_line(row))
@@ -453,6 +458,26 @@ def measure_family(family: Family, names, dtype, repeats: int, igl, arap_iterati
             figure(rig, results, row, path, np.asarray(rig.pinned_targets(targets)))
             row["figure"] = str(path)
     return rows
+
+
+def _control_arap_row(rig, arap, skin, pinned, start, iterations: int, diagonal: float
+                      ) -> dict:
+    """The row of libigl's ARAP on the control mesh, skinned to the shape mesh."""
+    control = arap(pinned, start)
+    vertices = np.asarray(skin(control.astype(np.asarray(start).dtype)))
+    handles = np.asarray(rig.control_mesh.handles)
+    miss = float(np.linalg.norm(control[handles] - pinned, axis=1).max())
+
+    def frame(p, s):
+        return skin(arap(p, s).astype(s.dtype)).block_until_ready()
+
+    return {
+        "iterations": iterations,
+        "flipped_shape": _flipped(rig.shape_mesh.vertices, vertices, rig.shape_mesh.faces),
+        "flipped_control": _flipped(rig.control_mesh.vertices, control, rig.control_mesh.faces),
+        "handle_miss": miss, "handle_miss_pct": 100.0 * miss / diagonal,
+        "frame_ms": median_ms(frame, [(pinned, start.astype(np.float32))], 3),
+    }
 
 
 def summarise(row: dict) -> None:
@@ -470,8 +495,8 @@ def summarise(row: dict) -> None:
                                          if unfolded else None)
         floor = ENERGY_FLOOR * row["diagonal"] ** 2
         for k in CONTROL_SOLVERS:
-            # The ARAP rows minimise another energy: no ratio to the paper's lowest.
-            if "energy" in s.get(k, {}) and k not in RIGID:
+            # The paper's rows minimise another energy: no ratio to the lowest.
+            if "energy" in s.get(k, {}) and k not in PAPER:
                 s[k]["energy_ratio"] = (max(s[k]["energy"], floor)
                                         / max(row["lowest_energy"], floor))
     d = s.get("default", {})
@@ -514,7 +539,7 @@ def figure(rig, results: dict, row: dict, path: Path, pinned=None) -> None:
     rest = np.asarray(rig.shape_mesh.vertices, np.float64)
     faces = np.asarray(rig.shape_mesh.faces)
     panels = [("rest", rest, None)]
-    for name in ("default", "gauss_newton", "fold_free"):
+    for name in ("paper_default", "default", "fold_free"):
         if name in results:
             panels.append((LABELS[name], np.asarray(results[name], np.float64),
                            row["solvers"][name]))
@@ -563,14 +588,81 @@ def _cell(s: dict, key: str, spec: str) -> str:
     return _fmt(s.get(key), spec)
 
 
+def suite_totals(rows: list[dict], name: str) -> dict | None:
+    """A solver's totals over the suite's poses: flipped shape triangles, the poses with
+    any, and the median and largest time per frame and first compile (ms)."""
+    ran = [r["solvers"][name] for r in rows if "flipped_shape" in r["solvers"].get(name, {})]
+    if not ran:
+        return None
+    times = [s["frame_ms"] for s in ran if s.get("frame_ms") is not None]
+    compiles = [s["compile_ms"] for s in ran if s.get("compile_ms") is not None]
+    return {
+        "poses": len(ran),
+        "flipped": sum(s["flipped_shape"] for s in ran),
+        "folded_poses": sum(s["flipped_shape"] > 0 for s in ran),
+        "median_ms": float(np.median(times)) if times else None,
+        "max_ms": max(times) if times else None,
+        "compile_median_ms": float(np.median(compiles)) if compiles else None,
+    }
+
+
+def _present(rows: list[dict]) -> list[str]:
+    """The solvers that ran, in the tables' order."""
+    return [k for k in (*CONTROL_SOLVERS, "full", "arap", "arap_control")
+            if any(k in r["solvers"] for r in rows)]
+
+
+def summary_table(data: dict) -> str:
+    """The suite's totals, a row per solver (`docs/folds.md`'s first table)."""
+    return "\n".join(totals_table(data["rows"], _present(data["rows"])))
+
+
+def totals_table(rows: list[dict], present) -> list[str]:
+    """The suite's totals, a row per solver (`suite_totals`)."""
+    out = ["**The suite's totals**: flipped shape triangles summed over the poses, the poses "
+           "with any, and the time per frame (median and largest over the poses) and the "
+           "first call's compile (median), in ms:", "",
+           "| solver | poses | flipped | poses folded | median frame | max frame | "
+           "median compile |", "|---|---|---|---|---|---|---|"]
+    for k in present:
+        t = suite_totals(rows, k)
+        if t is not None:
+            out.append(f"| {LABELS[k]} | {t['poses']} | {t['flipped']} | {t['folded_poses']} | "
+                       f"{_fmt(t['median_ms'], '.3g')} | {_fmt(t['max_ms'], '.3g')} | "
+                       f"{_fmt(t['compile_median_ms'], '.3g')} |")
+    return out + [""]
+
+
+def readme_table(data: dict) -> str:
+    """The README's lines on the default energy: the suite's totals for the default and
+    the paper's energy, FoldFree and libigl's ARAP."""
+    rows = data["rows"]
+    names = [k for k in ("default", "paper_default", "paper", "fold_free", "arap_control",
+                         "arap") if suite_totals(rows, k) is not None]
+    what = {
+        "default": "`rig.deform(targets)`: the as-rigid-as-possible energy (default)",
+        "paper_default": "the paper's energy, `Weights.paper()`, 100 fixed-G steps",
+        "paper": "the paper's energy and method, `FixedG()` from rest",
+        "fold_free": "`FoldFree()` (never folds)",
+        "arap_control": "libigl's ARAP on the same control mesh",
+        "arap": "libigl's ARAP on the whole shape mesh",
+    }
+    out = [f"| on the fold suite ({len(rows)} poses, {data.get('meta', {}).get('dtype', '?')}) "
+           "| flipped triangles | poses with a fold | median frame (ms) |", "|---|---|---|---|"]
+    for k in names:
+        t = suite_totals(rows, k)
+        out.append(f"| {what[k]} | {t['flipped']} | {t['folded_poses']} | "
+                   f"{_fmt(t['median_ms'], '.2g')} |")
+    return "\n".join(out) + "\n"
+
+
 def format_tables(data: dict) -> str:
     """The markdown tables of a results JSON (`data` as loaded): the criterion, the flips,
     the energies and handle misses, the times."""
     rows = data["rows"]
     meta = data.get("meta", {})
     runs = meta.get("runs", 1)
-    present = [k for k in (*CONTROL_SOLVERS, "full", "arap")
-               if any(k in r["solvers"] for r in rows)]
+    present = _present(rows)
     out = []
     out.append(
         f"Measured on {meta.get('cpu_count', '?')} cores ({meta.get('device', '?')}), JAX "
@@ -734,7 +826,7 @@ def main(argv=None) -> int:
     figures = args.figures if args.figures is not None else (
         "" if args.quick else "benchmarks/results/figures")
     figures = Path(figures) if figures else None
-    names = QUICK_SOLVERS if args.quick else (*CONTROL_SOLVERS, "full", "arap")
+    names = QUICK_SOLVERS if args.quick else (*CONTROL_SOLVERS, "full", "arap", "arap_control")
     igl = igl_or_none()
     if igl is None:
         print("libigl is missing: the ARAP columns are skipped. Install it with "

@@ -566,7 +566,7 @@ def grad_through_stop_early():
 def weights_all_shape_terms_zero():
     import mvcjax
 
-    check_rig(star_rig(weights=mvcjax.Weights(laplacian=0, mvc=0, length=0)))
+    check_rig(star_rig(weights=mvcjax.Weights.paper(laplacian=0, mvc=0, length=0)))
     return "solved"
 
 
@@ -581,7 +581,7 @@ def weights_handle_1e_30():
 def weights_length_1e20():
     import mvcjax
 
-    return check_rig(star_rig(weights=mvcjax.Weights(length=1e20)))
+    return check_rig(star_rig(weights=mvcjax.Weights.paper(length=1e20)))
 
 
 @case("weights")
@@ -599,7 +599,8 @@ def weights_all_1e_30():
 
     import mvcjax
 
-    rig = star_rig(weights=mvcjax.Weights(1e-30, 1e-30, 1e-30, 1e-30), dtype=jnp.float64)
+    rig = star_rig(weights=mvcjax.Weights(mvc=1e-34, handle=1e-30, arap=1e-30),
+                   dtype=jnp.float64)
     targets = _np().asarray(rig.handle_positions) + [[0.3, 0.0], [0.0, 0.0]]
     return converged_right(rig, targets, mvcjax.GaussNewton())
 
@@ -651,7 +652,7 @@ def with_weights_under_jit():
 
     rig = star_rig()
     t = rig.handle_positions + 0.05
-    out = jax.jit(lambda w: rig.with_weights(mvcjax.Weights(length=w)).deform(t))(1.0)
+    out = jax.jit(lambda w: rig.with_weights(mvcjax.Weights(arap=w)).deform(t))(1.0)
     finite(out)
     return "finite"
 

@@ -79,10 +79,10 @@ def run_model(name: str, repeats: int) -> dict:
     import jax.numpy as jnp
     import numpy as np
 
-    from mvcjax import datasets
+    from mvcjax import Weights, datasets
 
     model = datasets.model(name)
-    rig = model.rig(dtype=jnp.float64)
+    rig = model.rig(dtype=jnp.float64, weights=Weights.paper())  # the paper's energy
     targets = rig.handle_positions + jnp.asarray(model.drag)
     histories, compile_times = {}, {}
     for solver_name, (solver, steps) in solvers().items():

@@ -88,10 +88,13 @@ def measure(name, shape, handles, drag, options, repeats, igl, figures):
 
     import mvcjax
 
+    # The paper's energy, whatever mvcjax's default energy is.
+    options = {**options, "weights": mvcjax.Weights.paper()}
     ours, preprocess = _built(lambda: mvcjax.Rig.build(shape, handles, **options))
     bary = mvcjax.Rig.build(shape, handles, skinning=mvcjax.BarycentricSkinning(), **options)
     paper = mvcjax.Rig.build(shape, handles, skinning=mvcjax.MVCSkinning(), **options)
-    full_options = {k: v for k, v in options.items() if k in ("shape_spacing", "dtype")}
+    full_options = {k: v for k, v in options.items()
+                    if k in ("shape_spacing", "dtype", "weights")}
     full, full_preprocess = _built(
         lambda: mvcjax.Rig.build(shape, handles, control=mvcjax.FullSolve(), **full_options))
     if not np.array_equal(np.asarray(full.shape_mesh.faces), np.asarray(ours.shape_mesh.faces)):
@@ -101,7 +104,8 @@ def measure(name, shape, handles, drag, options, repeats, igl, figures):
     drag = jnp.asarray(drag, dtype)
     frames = [ours.handle_positions + s * drag for s in np.linspace(0.2, 1.0, FRAMES)]
     targets = frames[-1]
-    deform = {key: jax.jit(lambda t, r=rig: r.deform(t))
+    paper_solver = mvcjax.FixedG()  # the paper's 15 iterations
+    deform = {key: jax.jit(lambda t, r=rig: r.deform(t, paper_solver))
               for key, rig in [("na", bary), ("da", ours), ("da_mvc", paper), ("ra", full)]}
     row = {
         "model": name,

@@ -104,7 +104,7 @@ def deform_table(data: dict, source: str) -> str:
             _ms(r.get("default_frame_ms")),
             _ms(r.get("gauss_newton_frame_ms")) + (f" ({steps})" if steps is not None else ""),
         ])
-    head = ["dtype", "V_S", "V_C", "preprocess", "compile", "solve", "skin", "frame",
+    head = ["dtype", "V_S", "V_C", "preprocess", "paper: compile", "solve", "skin", "frame",
             "frame, rig as argument", "default frame", "GaussNewton frame (steps)"]
     repeats = data.get("meta", {}).get("repeats")
     return "\n".join([_measured_on(data, source, f"medians of {repeats} calls"), "",
@@ -469,6 +469,8 @@ def _results(name: str) -> str:
 
 BENCHMARKS = "docs/benchmarks.md"
 TABLES = [
+    Table("README.md", "folds-totals", _results("folds"),
+          lambda data, _: folds.readme_table(data)),
     Table(BENCHMARKS, "deform", _results("deform"), deform_table),
     Table(BENCHMARKS, "solvers", _results("solvers"), solvers_table),
     Table(BENCHMARKS, "frames", _results("frames"), frames_table),
@@ -485,6 +487,8 @@ TABLES = [
     Table(BENCHMARKS, "render-layers", _results("render"), render_layers_table),
     Table(BENCHMARKS, "render-export", _results("render"), render_export_table),
     Table("docs/paper.md", "table1", _results("table1"), table1_table),
+    Table("docs/folds.md", "folds-summary", _results("folds"),
+          lambda data, _: folds.summary_table(data)),
     Table("docs/folds.md", "folds", _results("folds"), lambda data, _: folds.format_tables(data)),
     Table("docs/robustness.md", "robustness", _results("robustness"), robustness_table,
           optional=True),
