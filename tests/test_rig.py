@@ -230,12 +230,14 @@ def test_user_control_mesh(horse, horse_rig32):
 def test_options_as_objects_build_what_the_old_spellings_do(horse, horse_rig):
     cm = horse_rig.control_mesh
     handles = datasets.horse_handles()
-    given = mvcjax.Rig.build(horse, handles, dtype=jnp.float64,
+    weights = horse_rig.energy.weights  # the paper's
+    given = mvcjax.Rig.build(horse, handles, dtype=jnp.float64, weights=weights,
                              control=mvcjax.GivenControl(cm.vertices, cm.faces),
                              factor=mvcjax.advanced.SparseLU())
     assert isinstance(given.factor, mvcjax.advanced.SparseFactor)
     paper = mvcjax.Rig.build(horse, handles, dtype=jnp.float64, control=mvcjax.PaperControl(),
-                             factor=mvcjax.advanced.DenseG(), skinning=mvcjax.BlendedMVCSkinning())
+                             factor=mvcjax.advanced.DenseG(), skinning=mvcjax.BlendedMVCSkinning(),
+                             weights=weights)
     targets = drag(horse_rig, [[30.0, 0.0], [0, 0], [0, 0], [0, 0], [0, 0]])
     for rig in (given, paper):
         np.testing.assert_allclose(rig.deform(targets), horse_rig.deform(targets), atol=1e-8)
