@@ -83,8 +83,14 @@ def reference(horse_rig):
 def test_solvers_agree_with_scipy(horse_rig, horse, solve, reference, name, handle, offset):
     targets = targets_for(horse_rig, handle, offset)
     vertices, info = solve(name, targets)
-    assert bool(info.converged), (name, int(info.iterations))
     minimum, minimum_energy = reference(handle, offset)
+    if name == "jaxopt_gauss_newton" and (handle, offset) == AGREEING[0]:
+        # Undamped Gauss-Newton cycles above the minimum on this drag (as on the raised
+        # arm, `test_undamped_gauss_newton_says_when_it_stalls`): it must say so.
+        assert not bool(info.converged)
+        assert float(info.energy) > minimum_energy * (1 + 1e-6)
+        return
+    assert bool(info.converged), (name, int(info.iterations))
     gap = np.abs(np.asarray(vertices) - minimum).max() / horse.diagonal
     assert gap < 1e-5, gap
     assert float(info.energy) == pytest.approx(minimum_energy, rel=1e-9)
@@ -266,12 +272,13 @@ def test_implicit_gradients_match_finite_differences_and_the_unrolled_one(stick_
     grads = jax.jit(jax.grad(loss, argnums=(1, 2)), static_argnums=0)(solver, targets, 0.0)
     loss = jax.jit(loss, static_argnums=0)
     along = float(jnp.sum(grads[0] * direction))
-    # Gauss-Newton's Armijo search and Dogleg's trust region compare energies, which
+    # Gauss-Newton's Armijo search, Dogleg's trust region and Levenberg-Marquardt's
+    # damping compare energies, which
     # float64 resolves only to about 1e-9 of the diagonal in the vertices: their solves
     # stop that far from the minimum, a little differently for each perturbed target
     # (Dogleg's quotient moves visibly between h = 1e-3 and 3e-3), and a
     # difference quotient needs a step large enough not to see it.
-    h = 1e-2 if name in ("gauss_newton", "dogleg") else 1e-3
+    h = 1e-2 if name in ("gauss_newton", "dogleg", "levenberg_marquardt") else 1e-3
     fd = ((loss(solver, targets + h * direction, 0.0)
            - loss(solver, targets - h * direction, 0.0)) / (2 * h),
           (loss(solver, targets, h) - loss(solver, targets, -h)) / (2 * h))
