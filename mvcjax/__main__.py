@@ -8,18 +8,20 @@ import argparse
 import sys
 import time
 
+import jax
+import numpy as np
+
+import mvcjax
+from mvcjax import datasets, export, generate, plot
+from mvcjax._solvers import DEFAULT_SOLVER
+from mvcjax.generate import PoseLimits
+
 
 def _say(message: str) -> None:
     print(message, flush=True)
 
 
 def _demo(args) -> int:
-    import jax
-    import numpy as np
-
-    import mvcjax
-    from mvcjax import datasets, export
-
     _say("mvcjax demo: the built-in horse, dragged by its handles")
     _say("  meshing the horse and building its rig ...")
     t0 = time.perf_counter()
@@ -27,31 +29,12 @@ def _demo(args) -> int:
     rig = mvcjax.Rig.build(shape, datasets.horse_handles(), shape_spacing=args.shape_spacing)
     jax.block_until_ready(rig)
     build = time.perf_counter() - t0
-
-    # A drag there and back, eased, as an animation's frames.
-    rest = np.asarray(rig.handle_positions)
-    ease = 0.5 - 0.5 * np.cos(np.linspace(0.0, 2.0 * np.pi, args.frames, endpoint=False))
-    targets = rest[None] + ease[:, None, None] * np.asarray(datasets.horse_drag())[None]
-    deform = jax.jit(rig.deform)  # the fastest compiled frame: the rig's arrays as constants
-    _say("  compiling the solve and the skinning ...")
-    t0 = time.perf_counter()
-    deform(targets[args.frames // 2]).block_until_ready()
-    compile_time = time.perf_counter() - t0
-    times = []
-    for frame in targets[:: max(1, args.frames // 8)].tolist() * 10:
-        t0 = time.perf_counter()
-        deform(np.asarray(frame)).block_until_ready()
-        times.append(time.perf_counter() - t0)
-    frame_time = float(np.median(times))
+    targets = _horse_drag(rig, args.frames)
+    compile_time, times = _time_deform(rig, targets, args.frames)
 
     _say(f"  deforming {args.frames} frames and drawing them textured ...")
     t0 = time.perf_counter()
-    frames = mvcjax.deform_frames(rig, targets)
-    window = mvcjax.fit_window(np.concatenate([np.asarray(frames),
-                                               np.asarray(rig.shape_mesh.vertices)[None]]),
-                               (args.size, args.size), margin=0.03)
-    renderer = mvcjax.Renderer.build(rig, size=(args.size, args.size), window=window)
-    pictures = renderer.frames(frames)
+    pictures, window = _draw_frames(rig, targets, args.size)
     draw_time = time.perf_counter() - t0
     export.write_animation(args.animation, pictures, fps=24)
 
@@ -59,60 +42,15 @@ def _demo(args) -> int:
     arm = _arm_overhead(args.arm_degrees)
 
     _say("  drawing the figure ...")
-    import matplotlib
+    _draw_figure(args, rig, pictures[args.frames // 2], targets[args.frames // 2], window, arm)
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from mvcjax import plot
-
-    posed = pictures[args.frames // 2]
-    fig, ((a, b), (c, d)) = plt.subplots(2, 2, figsize=(13, 11),
-                                         gridspec_kw={"height_ratios": [1.0, 1.1]})
-    plot.plot_rig(rig, a)
-    a.set_title("rest: shape mesh (grey) under control mesh (blue)")
-    xmin, ymin, xmax, ymax = window
-    plot.plot_outline(rig, b, color="0.35", linewidth=1.0, linestyle="--", zorder=1)
-    b.imshow(posed, extent=(xmin, xmax, ymin, ymax), interpolation="bilinear", zorder=2)
-    b.plot(*targets[args.frames // 2].T, "x", color="k", markersize=7, zorder=3)
-    b.set_xlim(xmin, xmax)
-    b.set_ylim(ymin, ymax)
-    b.set_aspect("equal")
-    b.set_xticks([])
-    b.set_yticks([])
-    b.set_title("deformed (checkerboard texture) over the rest outline (dashed); x: targets")
-    arm_rig, arm_targets = arm["rig"], arm["targets"]
-    for ax, (name, (vertices, _, folded)) in zip((c, d), arm["poses"].items()):
-        plot.plot_outline(arm_rig, ax, color="0.6", linewidth=0.8, linestyle="--")
-        plot.plot_mesh(vertices, arm_rig.shape_mesh.faces, ax, color="tab:green", linewidth=0.25)
-        plot.plot_folds(arm_rig, vertices, ax)
-        ax.plot(*np.asarray(arm_targets).T, "x", color="k", markersize=7)
-        ax.set_title(f"right arm turned {args.arm_degrees:g} degrees: {name}, "
-                     f"{folded} triangles folded (red)", fontsize=10)
-    points = np.concatenate([np.asarray(v) for v, _, _ in arm["poses"].values()])
-    lo, hi = points.min(axis=0), points.max(axis=0)
-    pad = 0.04 * (hi - lo).max()
-    for ax in (c, d):
-        ax.set_xlim(lo[0] - pad, hi[0] + pad)
-        ax.set_ylim(lo[1] - pad, hi[1] + pad)
-    fig.tight_layout()
-    fig.savefig(args.out, dpi=args.dpi)
-    plt.close(fig)
-
-    cm = rig.control_mesh
-    _say(f"shape      : {shape}")
-    _say(f"shape mesh : {rig.shape_mesh.vertices.shape[0]} vertices, "
-         f"{rig.shape_mesh.faces.shape[0]} triangles")
-    _say(f"control    : {cm.vertices.shape[0]} vertices ({cm.outer.shape[0]} on the polygon, "
-         f"{cm.inner.shape[0]} inner), {cm.faces.shape[0]} triangles, "
-         f"{cm.handles.shape[0]} handles")
-    _say(f"dtype      : {rig.energy.rest.dtype}, device {jax.devices()[0].platform}")
+    _say_rig(shape, rig)
     _say(f"preprocess : {build * 1e3:.0f} ms (meshing, skinning weights, G)")
     _say(f"compile    : {compile_time * 1e3:.0f} ms (solve + skin, once)")
-    iterations = mvcjax._solvers.DEFAULT_SOLVER.iterations
-    _say(f"per frame  : {frame_time * 1e3:.3f} ms (rig.deform's default: FixedG, "
-         f"{iterations} iterations from the turned start, + blended MVC skinning; median "
-         f"of {len(times)})")
+    iterations = DEFAULT_SOLVER.iterations
+    _say(f"per frame  : {float(np.median(times)) * 1e3:.3f} ms (rig.deform's default: "
+         f"FixedG, {iterations} iterations from the turned start, + blended MVC skinning; "
+         f"median of {len(times)})")
     for name, (_, info, folded) in arm["poses"].items():
         _say(f"arm        : {name:<9}: {folded} shape triangles folded, "
              f"{int(info.inverted)} control triangles inverted, handles missed by "
@@ -125,14 +63,107 @@ def _demo(args) -> int:
     return 0
 
 
+def _horse_drag(rig, frames: int) -> np.ndarray:
+    """The horse's handle targets `(frames, t, 2)` of a drag there and back, eased, as an
+    animation's frames."""
+    rest = np.asarray(rig.handle_positions)
+    ease = 0.5 - 0.5 * np.cos(np.linspace(0.0, 2.0 * np.pi, frames, endpoint=False))
+    return rest[None] + ease[:, None, None] * np.asarray(datasets.horse_drag())[None]
+
+
+def _time_deform(rig, targets: np.ndarray, frames: int) -> tuple[float, list[float]]:
+    """Seconds to compile `rig.deform`, and seconds of each of its compiled calls on
+    some of the `targets`, ten times over."""
+    deform = jax.jit(rig.deform)  # the fastest compiled frame: the rig's arrays as constants
+    _say("  compiling the solve and the skinning ...")
+    t0 = time.perf_counter()
+    deform(targets[frames // 2]).block_until_ready()
+    compile_time = time.perf_counter() - t0
+    times = []
+    for frame in targets[:: max(1, frames // 8)].tolist() * 10:
+        t0 = time.perf_counter()
+        deform(np.asarray(frame)).block_until_ready()
+        times.append(time.perf_counter() - t0)
+    return compile_time, times
+
+
+def _draw_frames(rig, targets: np.ndarray, size: int) -> tuple:
+    """The rig deformed to each of `targets` and drawn textured, `size` pixels square,
+    in a window that holds every frame and the rest shape: the pictures and the window."""
+    frames = mvcjax.deform_frames(rig, targets)
+    window = mvcjax.fit_window(np.concatenate([np.asarray(frames),
+                                               np.asarray(rig.shape_mesh.vertices)[None]]),
+                               (size, size), margin=0.03)
+    renderer = mvcjax.Renderer.build(rig, size=(size, size), window=window)
+    return renderer.frames(frames), window
+
+
+def _draw_figure(args, rig, posed, posed_targets, window, arm: dict) -> None:
+    """The demo's figure, written to `args.out`: the rest rig, the horse posed, and the
+    arm turned by the default solver and by `FoldFree`."""
+    import matplotlib  # lazily: only the demo's figure needs it
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ((a, b), (c, d)) = plt.subplots(2, 2, figsize=(13, 11),
+                                         gridspec_kw={"height_ratios": [1.0, 1.1]})
+    plot.plot_rig(rig, a)
+    a.set_title("rest: shape mesh (grey) under control mesh (blue)")
+    _plot_posed(b, rig, posed, posed_targets, window)
+    _plot_arm_poses((c, d), arm, args.arm_degrees)
+    fig.tight_layout()
+    fig.savefig(args.out, dpi=args.dpi)
+    plt.close(fig)
+
+
+def _plot_posed(ax, rig, posed, posed_targets, window) -> None:
+    """The posed picture over the rest outline (dashed), its targets marked x."""
+    xmin, ymin, xmax, ymax = window
+    plot.plot_outline(rig, ax, color="0.35", linewidth=1.0, linestyle="--", zorder=1)
+    ax.imshow(posed, extent=(xmin, xmax, ymin, ymax), interpolation="bilinear", zorder=2)
+    ax.plot(*posed_targets.T, "x", color="k", markersize=7, zorder=3)
+    ax.set_xlim(xmin, xmax)
+    ax.set_ylim(ymin, ymax)
+    ax.set_aspect("equal")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    ax.set_title("deformed (checkerboard texture) over the rest outline (dashed); x: targets")
+
+
+def _plot_arm_poses(axes, arm: dict, degrees: float) -> None:
+    """Each pose of `_arm_overhead` on its own axes, its folds in red, all framed alike."""
+    arm_rig, arm_targets = arm["rig"], arm["targets"]
+    for ax, (name, (vertices, _, folded)) in zip(axes, arm["poses"].items()):
+        plot.plot_outline(arm_rig, ax, color="0.6", linewidth=0.8, linestyle="--")
+        plot.plot_mesh(vertices, arm_rig.shape_mesh.faces, ax, color="tab:green", linewidth=0.25)
+        plot.plot_folds(arm_rig, vertices, ax)
+        ax.plot(*np.asarray(arm_targets).T, "x", color="k", markersize=7)
+        ax.set_title(f"right arm turned {degrees:g} degrees: {name}, "
+                     f"{folded} triangles folded (red)", fontsize=10)
+    points = np.concatenate([np.asarray(v) for v, _, _ in arm["poses"].values()])
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    pad = 0.04 * (hi - lo).max()
+    for ax in axes:
+        ax.set_xlim(lo[0] - pad, hi[0] + pad)
+        ax.set_ylim(lo[1] - pad, hi[1] + pad)
+
+
+def _say_rig(shape, rig) -> None:
+    """Print the shape, the sizes of the rig's meshes, and its dtype and device."""
+    cm = rig.control_mesh
+    _say(f"shape      : {shape}")
+    _say(f"shape mesh : {rig.shape_mesh.vertices.shape[0]} vertices, "
+         f"{rig.shape_mesh.faces.shape[0]} triangles")
+    _say(f"control    : {cm.vertices.shape[0]} vertices ({cm.outer.shape[0]} on the polygon, "
+         f"{cm.inner.shape[0]} inner), {cm.faces.shape[0]} triangles, "
+         f"{cm.handles.shape[0]} handles")
+    _say(f"dtype      : {rig.energy.rest.dtype}, device {jax.devices()[0].platform}")
+
+
 def _layers_demo(path, frames: int) -> None:
     """The built-in figure drawn in layers (a body, two arms over its sides, a hand of its
     own), its right arm swung across the body and back, written as an animation."""
-    import time
-
-    import mvcjax
-    from mvcjax import datasets, export
-
     _say("  posing a character drawn in layers, its arm across the body and back ...")
     t0 = time.perf_counter()
     layers = datasets.layered_figure()
@@ -151,17 +182,12 @@ def _arm_overhead(degrees: float) -> dict:
     """The built-in character with a bone per arm, its right arm turned `degrees` about
     the shoulder: the pose of the default solver and of `FoldFree`, each with its info
     and the number of folded shape triangles."""
-    import numpy as np
-
-    import mvcjax
-    from mvcjax import datasets
-
     rig = mvcjax.Rig.build(datasets.character(), datasets.character_bones("arms"))
     targets = np.array(rig.handle_positions)
     # Rows 4 and 5: the right arm's bone, from the shoulder to the wrist.
     targets[5] = datasets._rotate(targets[5], targets[4], float(degrees))
     poses = {}
-    for name, solver in (("default", mvcjax._solvers.DEFAULT_SOLVER),
+    for name, solver in (("default", DEFAULT_SOLVER),
                          ("FoldFree", mvcjax.FoldFree())):
         vertices, info = rig.deform(targets, solver, return_info=True)
         folded = mvcjax.flipped_triangles(rig.shape_mesh.vertices, vertices,
@@ -171,10 +197,6 @@ def _arm_overhead(degrees: float) -> dict:
 
 
 def _dataset(args) -> int:
-    import jax
-
-    from mvcjax import generate
-
     if args.coordinator is not None:
         jax.distributed.initialize(coordinator_address=args.coordinator,
                                    num_processes=args.num_processes,
@@ -255,8 +277,6 @@ def main(argv=None) -> int:
 
 
 def _pose_limits():
-    from mvcjax.generate import PoseLimits
-
     return PoseLimits()
 
 

@@ -14,11 +14,11 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Float
 
 from ._character import Character
-from ._checks import as_array, as_devices, check_solver, kind_of, whole_number
+from ._checks import as_array, as_devices, kind_of, whole_number
 from ._ladder import padded_twin
 from ._rig import Rig, solve_in_frame
 from ._skinning import skin_frames_into
-from ._solvers import DEFAULT_SOLVER, AbstractSolver
+from ._solvers import DEFAULT_SOLVER, AbstractSolver, check_solver
 from ._xla import to_device
 
 
@@ -112,6 +112,49 @@ def _deform_character(character: Character, targets, solver: AbstractSolver, chu
     return tuple(out)
 
 
+def _refuse_bad_host_frames(targets, h: int) -> None:
+    """Refuse concrete targets that are not real numbers, or whose frames hold NaN or
+    infinite values (named by index); traced targets cannot be checked."""
+    if isinstance(targets, jax.core.Tracer):
+        return
+    host = as_array(targets, "targets", f"an array of shape (frames, {h}, 2)")
+    if host.dtype.kind not in "iuf":
+        raise TypeError(f"targets must be real (x, y) numbers, got {kind_of(host)}.")
+    if host.ndim == 3 and host.shape[1:] == (h, 2):
+        bad = np.flatnonzero(~np.isfinite(host).all(axis=(1, 2)))
+        if len(bad):
+            raise ValueError(
+                f"targets of {len(bad)} frames contain NaN or infinite values (frames "
+                f"{bad[:10].tolist()}{' ...' if len(bad) > 10 else ''}); give finite "
+                "targets, or drop those frames."
+            )
+
+
+def _checked_frames(targets, h: int):
+    """`targets` as a JAX array of shape `(frames, h, 2)`, or an error that says why
+    they cannot be."""
+    _refuse_bad_host_frames(targets, h)
+    targets = jnp.asarray(targets)
+    if targets.ndim != 3 or targets.shape[1:] != (h, 2):
+        raise ValueError(
+            f"targets must have shape (frames, {h}, 2), one (x, y) per handle and frame, got "
+            f"{targets.shape}; for a single frame use rig.deform(targets)."
+        )
+    return targets
+
+
+def _deform_over_devices(rig: Rig, targets, solver: AbstractSolver, chunk: int, devices):
+    """The frames split evenly between `devices` (padded to a multiple of their count),
+    the rig replicated, and the result back in frame order without the padding."""
+    frames = targets.shape[0]
+    per_device = -(-frames // len(devices))
+    targets = _pad_frames(targets, len(devices))
+    mesh = Mesh(np.asarray(devices), ("frames",))
+    targets = jax.device_put(targets, NamedSharding(mesh, PartitionSpec("frames")))
+    rig = jax.device_put(rig, NamedSharding(mesh, PartitionSpec()))
+    return _deform_sharded(rig, targets, solver, min(chunk, per_device), mesh)[:frames]
+
+
 def deform_frames(
     rig: Rig | Character,
     targets: Any,
@@ -159,24 +202,7 @@ def deform_frames(
     h = rig.handles.count
     dtype = rig.handles.rest.dtype
     check_solver(solver)
-    if not isinstance(targets, jax.core.Tracer):
-        host = as_array(targets, "targets", f"an array of shape (frames, {h}, 2)")
-        if host.dtype.kind not in "iuf":
-            raise TypeError(f"targets must be real (x, y) numbers, got {kind_of(host)}.")
-        if host.ndim == 3 and host.shape[1:] == (h, 2):
-            bad = np.flatnonzero(~np.isfinite(host).all(axis=(1, 2)))
-            if len(bad):
-                raise ValueError(
-                    f"targets of {len(bad)} frames contain NaN or infinite values (frames "
-                    f"{bad[:10].tolist()}{' ...' if len(bad) > 10 else ''}); give finite "
-                    "targets, or drop those frames."
-                )
-    targets = jnp.asarray(targets)
-    if targets.ndim != 3 or targets.shape[1:] != (h, 2):
-        raise ValueError(
-            f"targets must have shape (frames, {h}, 2), one (x, y) per handle and frame, got "
-            f"{targets.shape}; for a single frame use rig.deform(targets)."
-        )
+    targets = _checked_frames(targets, h)
     chunk = whole_number(chunk, "chunk", what=" of frames")
     if targets.shape[0] == 0:
         raise ValueError("targets hold no frames (shape (0, h, 2)); give at least one frame.")
@@ -205,9 +231,4 @@ def deform_frames(
         return _deform_into(arrays, targets, out, static=static, chunk=min(chunk, frames))
     if len(devices) == 1:
         return _deform_one_device(rig, targets, solver, min(chunk, frames))
-    per_device = -(-frames // len(devices))
-    targets = _pad_frames(targets, len(devices))
-    mesh = Mesh(np.asarray(devices), ("frames",))
-    targets = jax.device_put(targets, NamedSharding(mesh, PartitionSpec("frames")))
-    rig = jax.device_put(rig, NamedSharding(mesh, PartitionSpec()))
-    return _deform_sharded(rig, targets, solver, min(chunk, per_device), mesh)[:frames]
+    return _deform_over_devices(rig, targets, solver, chunk, devices)

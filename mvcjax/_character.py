@@ -24,16 +24,19 @@ import jax.numpy as jnp
 import numpy as np
 import shapely
 from jaxtyping import Array, ArrayLike, Float, Int
+from skimage.measure import label
 
-from ._checks import check_solver, check_targets, whole_number
+from ._checks import check_targets, whole_number
 from ._handles import Bone, Handles, make_handles, parse_handles, pin
+from ._image import image_mask
 from ._layers import Layer, load_layers
 from ._module import JittableModule
-from ._render import Renderer, _key_layout
-from ._rig import ControlMesh, Rig, ShapeMesh, _compiled_when_eager, _thickness
+from ._pictures import to_uint8
+from ._render import Renderer, key_layout
+from ._rig import ControlMesh, Rig, ShapeMesh, compiled_when_eager, shape_thickness, solve_in_frame
 from ._shape import Shape
 from ._skinning import Skinning
-from ._solvers import DEFAULT_SOLVER, AbstractSolver
+from ._solvers import DEFAULT_SOLVER, AbstractSolver, check_solver
 from ._xla import to_device
 
 # Points pinning an attached part to its parent, spread over their overlap.
@@ -43,10 +46,6 @@ _LEAST_OVERLAP = 1e-3
 
 
 def _part_shapes(layers: list[Layer], alpha_threshold, tolerance) -> list[Shape]:
-    from skimage.measure import label
-
-    from ._image import image_mask
-
     shapes = []
     for layer in layers:
         try:
@@ -275,7 +274,7 @@ class Character(JittableModule):
         parents = _parents(shapes, feeds, attach, names)
         if shape_spacing is None:
             whole = np.sqrt(sum(s.area for s in shapes)) / 40.0
-            spacings = [min(whole, _thickness(s) / 2.0) for s in shapes]
+            spacings = [min(whole, shape_thickness(s) / 2.0) for s in shapes]
         else:
             spacings = [shape_spacing] * len(shapes)
         parts, attachments, feed_rows = [None] * len(shapes), [None] * len(shapes), []
@@ -377,6 +376,15 @@ class Character(JittableModule):
         vertices = self.skin(control)
         return (vertices, info) if return_info else vertices
 
+    def renderer(self, layers: Any, **options: Any) -> CharacterRenderer:
+        """A renderer of this character from the layers it was built from: what
+        `Renderer.build(character, layers, ...)` returns (`CharacterRenderer.build`
+        documents the options)."""
+        if layers is None:
+            raise ValueError("A character is drawn with its layers: pass the layers it was "
+                             "built from as image (Renderer.build(character, layers)).")
+        return CharacterRenderer.build(self, layers, **options)
+
     def __repr__(self) -> str:
         parts = ", ".join(f"{name!r}: {p.shape_mesh.vertices.shape[0]} vertices"
                           + (f", follows {self.names[self.parents[i]]!r}"
@@ -394,10 +402,8 @@ def _joined(meshes: list[tuple]) -> list:
         for k in range(1, len(meshes[0]))]
 
 
-@_compiled_when_eager
+@compiled_when_eager
 def _solve_parts(character: Character, targets, solver: AbstractSolver, init):
-    from ._rig import solve_in_frame
-
     control, info = [None] * len(character.parts), [None] * len(character.parts)
     for i in character.order:
         part = character.parts[i]
@@ -502,7 +508,7 @@ class CharacterRenderer(JittableModule):
         # the part's level: within a part, the triangle covering a pixel most draws it,
         # so that the part's outline stays one antialiased edge, and where the part folds
         # over itself the deeper triangle is on top.
-        if len(parts) > _key_layout(len(part_of_face))[1]:
+        if len(parts) > key_layout(len(part_of_face))[1]:
             raise ValueError(f"A character of {len(parts)} parts and {len(part_of_face)} "
                              "triangles has more parts than draw levels: merge layers, or "
                              "build it with a coarser shape_spacing.")
@@ -571,8 +577,6 @@ class CharacterRenderer(JittableModule):
             order: `(p,)` one draw order, or `(frames, p)` one per frame.
             chunk: frames drawn by one compiled call.
         """
-        from .export import to_uint8
-
         vertices = tuple(np.asarray(v) for v in vertices)
         frames = vertices[0].shape[0]
         count = len(self.sizes)

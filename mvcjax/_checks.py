@@ -3,6 +3,7 @@ what was wrong and the fix."""
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -50,30 +51,10 @@ def as_array(value, name: str, what: str) -> np.ndarray:
                          "lengths).") from None
 
 
-def check_solver(solver, name: str = "solver"):
-    """`solver` itself if it is an mvcjax solver object; otherwise a TypeError with the
-    spelling that works (a solver's name as a string is a common slip)."""
-    from ._solvers import AbstractSolver
-
-    if isinstance(solver, AbstractSolver):
-        return solver
-    if isinstance(solver, str):
-        fix = f"mvcjax.{solver}()" if solver.isidentifier() else "mvcjax.GaussNewton()"
-        raise TypeError(f"{name} must be an mvcjax solver object, not the string {solver!r}; "
-                        f"write {fix}.")
-    if isinstance(solver, type) and issubclass(solver, AbstractSolver):
-        raise TypeError(f"{name} must be an mvcjax solver object, got the class "
-                        f"{solver.__name__}; write mvcjax.{solver.__name__}().")
-    raise TypeError(f"{name} must be an mvcjax solver such as mvcjax.FixedG() or "
-                    f"mvcjax.GaussNewton(), got {type(solver).__name__}.")
-
-
 def finite_when_traced(array, message: str):
     """`array`, raising `message` when it is run if it holds a NaN or an infinity: the
     check, for values traced under `jit` or `grad`, that a concrete value gets on the
     host."""
-    import equinox as eqx
-
     return eqx.error_if(array, ~jnp.all(jnp.isfinite(array)), message)
 
 

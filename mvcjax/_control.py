@@ -16,10 +16,16 @@ import equinox as eqx
 import numpy as np
 import shapely
 
-from . import _meshing as meshing, _topology as topology
 from ._checks import as_points
 from ._handles import bone_samples, bone_samples_on
 from ._local_frame import points_to_local
+from ._meshing import (
+    control_polygon,
+    counter_clockwise,
+    inner_control_vertices,
+    triangulate_control,
+)
+from ._topology import boundary_loops
 
 
 class ControlParts(NamedTuple):
@@ -44,7 +50,7 @@ class ControlParts(NamedTuple):
 
 def loops_and_inner(vertices, faces) -> tuple[list[np.ndarray], np.ndarray]:
     """A mesh's boundary loops (`V_CP`, the outer loop first) and its other vertices (`V_CG`)."""
-    loops = topology.boundary_loops(faces)
+    loops = boundary_loops(faces)
     loops.sort(key=lambda lp: -abs(shapely.Polygon(vertices[lp]).area))
     on_loop = np.zeros(len(vertices), bool)
     on_loop[np.concatenate(loops)] = True
@@ -85,9 +91,9 @@ class PaperControl(AbstractControl):
 
     def build(self, local, shape_vertices, shape_faces, shape_pinned, pinned, spacing, margin,
               frame):
-        loops = meshing.control_polygon(local, margin, spacing)
-        inner_shape = meshing.inner_control_vertices(shape_vertices, shape_pinned, loops, spacing)
-        vertices, faces = meshing.triangulate_control(loops, shape_vertices[inner_shape])
+        loops = control_polygon(local, margin, spacing)
+        inner_shape = inner_control_vertices(shape_vertices, shape_pinned, loops, spacing)
+        vertices, faces = triangulate_control(loops, shape_vertices[inner_shape])
         offsets = np.cumsum([0, *(len(lp) for lp in loops)])
         loops = [np.arange(a, b) for a, b in itertools.pairwise(offsets)]
         inner = np.arange(offsets[-1], len(vertices))
@@ -154,7 +160,7 @@ class GivenControl(AbstractControl):
     def build(self, local, shape_vertices, shape_faces, shape_pinned, pinned, spacing, margin,
               frame):
         vertices = points_to_local(self.vertices, frame)
-        faces = meshing._counter_clockwise(vertices, self.faces)
+        faces = counter_clockwise(vertices, self.faces)
         loops, inner = loops_and_inner(vertices, faces)
         dist = np.linalg.norm(vertices[None] - pinned[:, None], axis=2)
         at = np.argmin(dist, axis=1)

@@ -110,7 +110,7 @@ def _local_fields(energy: Energy) -> dict[str, Array | None]:
 
 
 @jax.jit
-def _local_stencil(energy: Energy) -> tuple[Int[Array, "m 3"], Float[Array, "m 3"]]:
+def local_stencil(energy: Energy) -> tuple[Int[Array, "m 3"], Float[Array, "m 3"]]:
     # One compiled call (cached by shapes) instead of dozens of eager small ones, each
     # compiled anew for a rig of new sizes.
     rows, coef, _ = _local_rows(energy)
@@ -368,7 +368,7 @@ def dense_factor(energy: Energy, spread: Int[ArrayLike, "n d"] | None = None) ->
                 "dense_factor of a traced energy needs the mesh's spread table: call "
                 "rig.factor.rebuild(energy) (or rig.with_weights) instead."
             )
-        rows, coef = _local_stencil(energy)
+        rows, coef = local_stencil(energy)
         spread = transpose_table(rows, coef, energy.num_vertices)
     return _dense_factor(energy, spread if isinstance(spread, jax.Array)
                          else to_device(spread, np.int32))

@@ -26,10 +26,10 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from ._character import Character, CharacterRenderer
-from ._checks import check_solver, kind_of, whole_number
-from ._render import Renderer, _picture, check_drawn_mesh, in_window
+from ._checks import kind_of, whole_number
+from ._render import Renderer, as_picture, check_drawn_mesh, in_window
 from ._rig import Rig
-from ._solvers import DEFAULT_SOLVER, AbstractSolver
+from ._solvers import DEFAULT_SOLVER, AbstractSolver, check_solver
 
 _CHANNELS = ("rgba", "alpha")
 
@@ -96,6 +96,31 @@ def _check_solver(solver) -> AbstractSolver:
     return DEFAULT_SOLVER if solver is None else check_solver(solver)
 
 
+def _check_blurs(blurs) -> np.ndarray:
+    """`(stages,)` the stages' blurs as float64 numbers, or an error: one or more finite
+    numbers >= 0."""
+    try:
+        blur_values = np.atleast_1d(np.asarray(blurs, np.float64))
+    except (TypeError, ValueError):
+        blur_values = np.array([np.nan])
+    if blur_values.ndim != 1 or not np.all(np.isfinite(blur_values)) or np.any(
+            blur_values < 0):
+        raise ValueError(f"blurs must be one or more numbers >= 0 (pixels, one per stage), "
+                         f"got {blurs!r}.")
+    return blur_values
+
+
+def _check_method(method, rtol, atol) -> optx.AbstractGaussNewton:
+    """The fit's least-squares solver: `method`, by default
+    `optx.LevenbergMarquardt(rtol, atol)`, or an error if it is not Gauss-Newton-type."""
+    if method is None:
+        method = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    if not isinstance(method, optx.AbstractGaussNewton):
+        raise TypeError(f"method must be an optimistix Gauss-Newton-type solver such as "
+                        f"optx.LevenbergMarquardt(rtol, atol), got {method!r}.")
+    return method
+
+
 def _check_in_view(rig, renderer, targets) -> None:
     """Raise if no handle lies in the renderer's window, warn about those outside."""
     window = np.asarray(renderer.window, np.float64)
@@ -139,7 +164,7 @@ def _prepare_picture(picture, renderer: Renderer | CharacterRenderer, channels: 
             raise ValueError("picture is RGB, which has no alpha to compare silhouettes "
                              "with: pass a (rows, cols) mask, an RGBA picture, or use "
                              "channels='rgba'.")
-        array = _picture(picture, "picture")
+        array = as_picture(picture, "picture")
     shape = tuple(array.shape)
     if shape[:2] != (rows, cols):
         raise ValueError(f"picture is {shape[0]} x {shape[1]} pixels (rows x cols) but the "
@@ -357,6 +382,42 @@ def _stage(rig, renderer, solver, weights, method, steps: int, start, target_pic
     return found, history.astype(start.dtype), step, converged
 
 
+def _tolerances_as_arrays(method):
+    """`method` with its tolerances as arrays: numbers of the compiled program, not
+    constants of it, so that other tolerances never recompile."""
+    return eqx.tree_at(lambda m: (m.rtol, m.atol), method,
+                       (jnp.asarray(method.rtol), jnp.asarray(method.atol)))
+
+
+def _pixel_size(renderer, dtype):
+    """`(2,)` a pixel's width and height in the plane's coordinates."""
+    rows, cols = renderer.shape
+    window = jnp.asarray(renderer.window, dtype)
+    return jnp.stack([(window[2] - window[0]) / cols, (window[3] - window[1]) / rows])
+
+
+def _fit_stages(rig, renderer, solver, weights, method, steps: int, start, target_picture,
+                blur_values) -> FitResult:
+    """The fit's stages in turn, one per blur, each from the targets the last found:
+    the `FitResult` of them all."""
+    pixel = _pixel_size(renderer, start.dtype)
+    # Rigid bones by pivot and angle: their rows fix the program, their lengths do not.
+    bones = rig.handles.rigid_bones(rig.handle_positions)
+    bone_rows = tuple((first, last) for first, last, _ in bones)
+    bone_lengths = jnp.asarray([length for *_, length in bones], start.dtype)
+    targets, histories, counts, converged = start, [], [], []
+    for blur in blur_values:
+        targets, history, count, done = _stage(
+            rig, renderer, solver, weights, method, steps, targets, target_picture,
+            jnp.asarray(blur, start.dtype), pixel, bone_rows, bone_lengths)
+        histories.append(history)
+        counts.append(count)
+        converged.append(done)
+    return FitResult(targets=targets, loss_history=jnp.stack(histories),
+                     blurs=jnp.asarray(blur_values, start.dtype), steps=jnp.stack(counts),
+                     converged=jnp.stack(converged))
+
+
 def fit_targets(
     rig: Rig | Character,
     renderer: Renderer | CharacterRenderer,
@@ -419,46 +480,13 @@ def fit_targets(
     channels = _check_channels(channels)
     solver = _check_solver(solver)
     steps = whole_number(steps, "steps", what=" (the most solver steps per stage)")
-    try:
-        blur_values = np.atleast_1d(np.asarray(blurs, np.float64))
-    except (TypeError, ValueError):
-        blur_values = np.array([np.nan])
-    if blur_values.ndim != 1 or not np.all(np.isfinite(blur_values)) or np.any(
-            blur_values < 0):
-        raise ValueError(f"blurs must be one or more numbers >= 0 (pixels, one per stage), "
-                         f"got {blurs!r}.")
-    if method is None:
-        method = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
-    if not isinstance(method, optx.AbstractGaussNewton):
-        raise TypeError(f"method must be an optimistix Gauss-Newton-type solver such as "
-                        f"optx.LevenbergMarquardt(rtol, atol), got {method!r}.")
-    # The tolerances as arrays: numbers of the compiled program, not constants of it, so
-    # that other tolerances never recompile.
-    method = eqx.tree_at(lambda m: (m.rtol, m.atol), method,
-                         (jnp.asarray(method.rtol), jnp.asarray(method.atol)))
+    blur_values = _check_blurs(blurs)
+    method = _tolerances_as_arrays(_check_method(method, rtol, atol))
     start = rig._check_targets(rig.handle_positions if init is None else init)
     _check_in_view(rig, renderer, start)
     target_picture = _prepare_picture(picture, renderer, channels)
-    rows, cols = renderer.shape
-    window = jnp.asarray(renderer.window, start.dtype)
-    pixel = jnp.stack([(window[2] - window[0]) / cols, (window[3] - window[1]) / rows])
-
-    # Rigid bones by pivot and angle: their rows fix the program, their lengths do not.
-    bones = rig.handles.rigid_bones(rig.handle_positions)
-    bone_rows = tuple((first, last) for first, last, _ in bones)
-    bone_lengths = jnp.asarray([length for *_, length in bones], start.dtype)
-    targets, histories, counts, converged = start, [], [], []
-    for blur in blur_values:
-        targets, history, count, done = _stage(
-            rig, renderer, solver, _weights(channels, target_picture.dtype), method,
-            int(steps), targets, target_picture,
-            jnp.asarray(blur, start.dtype), pixel, bone_rows, bone_lengths)
-        histories.append(history)
-        counts.append(count)
-        converged.append(done)
-    result = FitResult(targets=targets, loss_history=jnp.stack(histories),
-                       blurs=jnp.asarray(blur_values, start.dtype), steps=jnp.stack(counts),
-                       converged=jnp.stack(converged))
+    result = _fit_stages(rig, renderer, solver, _weights(channels, target_picture.dtype),
+                         method, int(steps), start, target_picture, blur_values)
     if warn and not bool(result.fit_converged):
         warnings.warn(f"fit_targets: the last stage (blur {blur_values[-1]:g}) did not "
                       f"converge in {steps} steps (loss {float(result.loss):.3g}); the "

@@ -15,7 +15,7 @@ from ._checks import kind_of, whole_number
 _CHANNELS = "(rows, cols) grey, (rows, cols, 3) RGB or (rows, cols, 4) RGBA"
 
 
-def _is_pil_image(image) -> bool:
+def is_pil_image(image) -> bool:
     # Without importing Pillow: an object can only be a Pillow image if Pillow is loaded.
     pil = sys.modules.get("PIL.Image")
     return pil is not None and isinstance(image, pil.Image)
@@ -136,7 +136,7 @@ def load_image(image: Any) -> Float[np.ndarray, "rows cols 4"]:
     """
     if isinstance(image, (str, os.PathLike)):
         return _from_file(image, repr(os.fspath(image)))
-    if _is_pil_image(image):
+    if is_pil_image(image):
         return _from_pil(image, f"the Pillow image ({image.mode})")
     return _from_array(image, "image")
 

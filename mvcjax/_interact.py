@@ -33,14 +33,14 @@ from jaxtyping import Array, Float
 
 from ._animation import deform_frames
 from ._character import Character, CharacterRenderer
-from ._checks import check_solver
 from ._coordinates import barycentric_coordinates, locate_points
 from ._folds import signed_areas
 from ._pins import pin_state, pinned_row, with_pin_state, with_rows
-from ._render import Renderer, _window, check_drawn_mesh, fit_window, in_window
+from ._render import Renderer, check_drawn_mesh, check_window, fit_window, in_window
 from ._rig import Rig
-from ._solvers import DEFAULT_SOLVER, AbstractSolver, FoldFree
+from ._solvers import DEFAULT_SOLVER, AbstractSolver, FoldFree, check_solver
 from ._topology import boundary_loops, edges
+from .export import write_animation
 
 _HANDLE_STYLE = {"marker": "o", "markersize": 9, "color": "tab:red", "markeredgecolor": "white",
                  "markeredgewidth": 1.2, "linestyle": "none"}
@@ -142,6 +142,28 @@ def _fold_words(folds: int, solver: AbstractSolver) -> str:
     return words + ": try solver=mvcjax.FoldFree()"
 
 
+def _check_posing_options(rig, solver, pick_radius, margin, ax, spare_pins) -> None:
+    """`Posing`'s arguments checked, with errors naming the one to fix."""
+    if not isinstance(rig, (Rig, Character)):
+        raise TypeError(f"rig must be an mvcjax.Rig (mvcjax.Rig.build(shape, handles)) "
+                        f"or an mvcjax.Character, got {type(rig).__name__}.")
+    check_solver(solver)
+    if isinstance(pick_radius, bool) or not (isinstance(pick_radius, (int, float))
+                                            and pick_radius > 0):
+        raise ValueError(f"pick_radius must be a positive number of screen pixels, got "
+                         f"{pick_radius!r}.")
+    if isinstance(margin, bool) or not (isinstance(margin, (int, float)) and margin >= 0):
+        raise ValueError(f"margin must be a number >= 0 (a fraction of the shape's size), "
+                         f"got {margin!r}.")
+    if ax is not None and not hasattr(ax, "transData"):
+        raise TypeError(f"ax must be matplotlib axes (e.g. plt.subplots()[1]), got "
+                        f"{type(ax).__name__}.")
+    if isinstance(spare_pins, bool) or not (isinstance(spare_pins, (int, np.integer))
+                                            and spare_pins >= 0):
+        raise ValueError(f"spare_pins must be a whole number >= 0 (how many pins a click "
+                         f"can add), got {spare_pins!r}.")
+
+
 class Posing:
     """A live session posing a rig with the mouse; make one with `mvcjax.interact`.
 
@@ -183,26 +205,7 @@ class Posing:
                  margin: Any = 0.3, control_mesh: Any = True, record: Any = False,
                  pick_radius: Any = 12.0, renderer: Any = None, show_folds: Any = True,
                  spare_pins: Any = 8, **render_options: Any):
-        import matplotlib.pyplot as plt
-
-        if not isinstance(rig, (Rig, Character)):
-            raise TypeError(f"rig must be an mvcjax.Rig (mvcjax.Rig.build(shape, handles)) "
-                            f"or an mvcjax.Character, got {type(rig).__name__}.")
-        check_solver(solver)
-        if isinstance(pick_radius, bool) or not (isinstance(pick_radius, (int, float))
-                                                and pick_radius > 0):
-            raise ValueError(f"pick_radius must be a positive number of screen pixels, got "
-                             f"{pick_radius!r}.")
-        if isinstance(margin, bool) or not (isinstance(margin, (int, float)) and margin >= 0):
-            raise ValueError(f"margin must be a number >= 0 (a fraction of the shape's size), "
-                             f"got {margin!r}.")
-        if ax is not None and not hasattr(ax, "transData"):
-            raise TypeError(f"ax must be matplotlib axes (e.g. plt.subplots()[1]), got "
-                            f"{type(ax).__name__}.")
-        if isinstance(spare_pins, bool) or not (isinstance(spare_pins, (int, np.integer))
-                                                and spare_pins >= 0):
-            raise ValueError(f"spare_pins must be a whole number >= 0 (how many pins a click "
-                             f"can add), got {spare_pins!r}.")
+        _check_posing_options(rig, solver, pick_radius, margin, ax, spare_pins)
         self._given, self.solver = rig, solver
         # A character's parts are rigs of their own: it keeps the handles it was built with.
         self._own_rows = rig.handles.count
@@ -214,29 +217,8 @@ class Posing:
         rest = np.asarray(rig.shape_mesh.vertices, np.float64)
         self._faces = np.asarray(rig.shape_mesh.faces, np.int64)
         rest_sign = np.sign(_signed_areas(rest, self._faces)).astype(np.int8)
-        given_rest = np.asarray(rig.handle_positions, np.float64)
-        if window is None:
-            window = (renderer.window if renderer is not None
-                      else fit_window(np.concatenate([rest, given_rest]),
-                                      size, margin=margin))
-        self.window = tuple(float(w) for w in _window(window, "window"))
-        self._check_in_view(given_rest)
-        if ax is None:
-            _, ax = plt.subplots(figsize=(6, 6))
-        self.axes, self.figure = ax, ax.figure
-        _warn_if_no_window(self.figure)
-        _show_window(ax, self.window)
-        if renderer is None and (image is not None or render_options or size is not None):
-            renderer = Renderer.build(rig, image, window=self.window,
-                                      size=size if size is not None else _pixels(ax),
-                                      **render_options)
-        elif renderer is not None and (image is not None or render_options):
-            raise ValueError("pass either renderer= or image= (and render options), not both.")
-        self.renderer = renderer
-        # A character's parts are drawn as one mesh, in the layers' order.
-        renderer = renderer.mesh if isinstance(renderer, CharacterRenderer) else renderer
-        if renderer is not None:
-            check_drawn_mesh(renderer, rig.shape_mesh.vertices, rig.shape_mesh.faces)
+        renderer = self._set_view(rig, rest, ax, window, size, margin, renderer, image,
+                                  render_options)
         # The renderer and solver are constants of the session's one program; the rig is
         # an argument, so that a pin placed or taken out (new numbers, the same shapes)
         # runs the same program.
@@ -271,6 +253,36 @@ class Posing:
         ]
         if self._recording:
             self._record()
+
+    def _set_view(self, rig, rest, ax, window, size, margin, renderer, image,
+                  render_options):
+        """The session's window, axes, figure and renderer; the mesh the renderer draws
+        (a character's parts as one mesh, in the layers' order)."""
+        import matplotlib.pyplot as plt  # lazily: matplotlib only for interactive sessions
+
+        given_rest = np.asarray(rig.handle_positions, np.float64)
+        if window is None:
+            window = (renderer.window if renderer is not None
+                      else fit_window(np.concatenate([rest, given_rest]),
+                                      size, margin=margin))
+        self.window = tuple(float(w) for w in check_window(window, "window"))
+        self._check_in_view(given_rest)
+        if ax is None:
+            _, ax = plt.subplots(figsize=(6, 6))
+        self.axes, self.figure = ax, ax.figure
+        _warn_if_no_window(self.figure)
+        _show_window(ax, self.window)
+        if renderer is None and (image is not None or render_options or size is not None):
+            renderer = Renderer.build(rig, image, window=self.window,
+                                      size=size if size is not None else _pixels(ax),
+                                      **render_options)
+        elif renderer is not None and (image is not None or render_options):
+            raise ValueError("pass either renderer= or image= (and render options), not both.")
+        self.renderer = renderer
+        renderer = renderer.mesh if isinstance(renderer, CharacterRenderer) else renderer
+        if renderer is not None:
+            check_drawn_mesh(renderer, rig.shape_mesh.vertices, rig.shape_mesh.faces)
+        return renderer
 
     # ---- what the user keeps -----------------------------------------------------------
 
@@ -392,8 +404,6 @@ class Posing:
 
         Drawn by `renderer`, or the session's, or, without one, the shape filled with a
         checkerboard in the session's window, 512 pixels along its longer side."""
-        from .export import write_animation
-
         renderer = renderer if renderer is not None else self.renderer
         if renderer is None:
             mesh = self._given.shape_mesh

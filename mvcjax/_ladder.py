@@ -26,6 +26,7 @@ import numpy as np
 
 from ._factor import DenseFactor, local_blocks
 from ._skinning import block_width_limit
+from ._stack import common_sizes, pad_rig, padded_energy, padded_factors, padded_skinnings
 from ._stencils import transpose_table
 from ._xla import to_device
 
@@ -105,18 +106,16 @@ _FLOORS = {"ring": 12, "skin_width": 23, "spread": 23}
 def twin_parts(parts: dict, ladder: SizeLadder):
     """For a rig's parts (its fields but the factor), its padded twin's dense factor
     and energy, and `finish(rig)`, which pads the rig built from them into the twin."""
-    from ._stack import _factors, _pad_rig, _padded_energy, _skinnings, common_sizes
-
     sizes = ladder.sizes(common_sizes([types.SimpleNamespace(**parts)]))
-    energy = _padded_energy(parts["energy"], sizes)
-    (factor,) = _factors([energy], None, lambda width: ladder.padded("spread", width))
+    energy = padded_energy(parts["energy"], sizes)
+    (factor,) = padded_factors([energy], None, lambda width: ladder.padded("spread", width))
 
     def finish(rig):
         def shapes(name, largest, tile):
             return ladder.table_shape(name, largest, tile, sizes)
 
-        (skinning,) = _skinnings([rig], sizes, None, shapes)
-        return _pad_rig(rig, sizes, skinning, factor, energy)
+        (skinning,) = padded_skinnings([rig], sizes, None, shapes)
+        return pad_rig(rig, sizes, skinning, factor, energy)
 
     return factor, energy, finish
 

@@ -122,7 +122,7 @@ def triangulate_shape(
     rank[order] = np.arange(len(order))
     verts, faces = verts[order], rank[faces]
     handle_idx = cKDTree(verts).query(handles)[1]
-    return verts, _counter_clockwise(verts, faces), handle_idx.astype(np.int64)
+    return verts, counter_clockwise(verts, faces), handle_idx.astype(np.int64)
 
 
 def hilbert_order(points: Float[np.ndarray, "n 2"], bits: int = 16) -> Int[np.ndarray, " n"]:
@@ -147,7 +147,7 @@ def hilbert_order(points: Float[np.ndarray, "n 2"], bits: int = 16) -> Int[np.nd
     return np.argsort(d, kind="stable")
 
 
-def _counter_clockwise(verts, faces):
+def counter_clockwise(verts, faces):
     a, b, c = (verts[faces[:, i]] for i in range(3))
     signed = cross(b - a, c - a)
     faces = faces.copy()
@@ -347,4 +347,4 @@ def triangulate_control(
             "The control polygon crosses itself or passes through an inner control vertex; "
             "try a smaller PaperControl(spacing=...) or margin."
         )
-    return vertices, _counter_clockwise(vertices, np.asarray(out["triangles"], np.int64))
+    return vertices, counter_clockwise(vertices, np.asarray(out["triangles"], np.int64))

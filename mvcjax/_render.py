@@ -24,19 +24,28 @@ is `(-0.5, -0.5, cols - 0.5, rows - 0.5)`, where the centre of pixel `(row, col)
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+from collections.abc import Sequence
 from typing import Any
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import scipy.sparse
+import scipy.sparse.csgraph
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._batching import one_after_another, with_batching_rule
 from ._checks import as_devices, as_points, kind_of, whole_number
+from ._image import load_image
 from ._module import JittableModule
-from ._topology import on_boundary
+from ._pictures import to_uint8
+from ._progress import progress_bar
+from ._rig import Rig, ShapeMesh
+from ._stack import pad_rows, stacked, too_large
+from ._topology import boundary_edges, edges, on_boundary
 from ._xla import materialise, to_device
 
 # A candidate pixel is inside a triangle when its centre is no further than this outside
@@ -57,10 +66,8 @@ _DEPTH_LEVELS = 16
 _TILES = (2, 4, 8, 16)
 
 
-def _picture(image, name: str) -> np.ndarray:
+def as_picture(image, name: str) -> np.ndarray:
     """`(rows, cols, 4)` straight RGBA float32 in [0, 1] from a picture array."""
-    from ._image import load_image
-
     try:
         return load_image(image)
     except (TypeError, ValueError) as error:
@@ -83,7 +90,7 @@ def checkerboard(
     return np.concatenate([rgb, np.ones((rows, cols, 1), np.float32)], axis=-1)
 
 
-def _window(window, name: str) -> np.ndarray:
+def check_window(window, name: str) -> np.ndarray:
     w = np.asarray(window, np.float64)
     if w.shape != (4,) or not np.all(np.isfinite(w)) or not (w[2] > w[0] and w[3] > w[1]):
         raise ValueError(f"{name} must be (xmin, ymin, xmax, ymax) with xmin < xmax and "
@@ -91,7 +98,7 @@ def _window(window, name: str) -> np.ndarray:
     return w
 
 
-def _size(size) -> tuple[int, int]:
+def check_size(size) -> tuple[int, int]:
     if (not isinstance(size, (tuple, list)) or len(size) != 2
             or not all(isinstance(s, (int, np.integer)) and not isinstance(s, bool)
                        for s in size)
@@ -113,7 +120,7 @@ def fit_window(
     extent = np.maximum(hi - lo, 1e-12 * max(1.0, float(np.abs(p).max())))
     lo, hi = lo - margin * extent, hi + margin * extent
     if size is not None:
-        rows, cols = _size(size)
+        rows, cols = check_size(size)
         centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
         pixel = max(half[0] / cols, half[1] / rows)
         half = pixel * np.array([cols, rows])
@@ -121,7 +128,7 @@ def fit_window(
     return float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])
 
 
-def _to_pixels(points, window, rows: int, cols: int):
+def to_pixels(points, window, rows: int, cols: int):
     """Plane points to fractional `(col, row)` positions, pixel centres at integers."""
     xmin, ymin, xmax, ymax = window[0], window[1], window[2], window[3]
     col = (points[..., 0] - xmin) * (cols / (xmax - xmin)) - 0.5
@@ -310,16 +317,10 @@ class Renderer(JittableModule):
                 many times over) raises an error saying so.
             dtype: float dtype of the computation; default the mesh's.
         """
-        from ._character import Character, CharacterRenderer
-
-        if isinstance(mesh, Character):
-            if image is None:
-                raise ValueError("A character is drawn with its layers: pass the layers it "
-                                 "was built from as image (Renderer.build(character, "
-                                 "layers)).")
-            return CharacterRenderer.build(mesh, image, window=window, size=size,
-                                           background=background, antialias=antialias,
-                                           alpha=alpha, budget=budget, dtype=dtype)
+        drawn_in_parts = getattr(mesh, "renderer", None)
+        if drawn_in_parts is not None:  # a subject drawn in parts: a layered `Character`
+            return drawn_in_parts(image, window=window, size=size, background=background,
+                                  antialias=antialias, alpha=alpha, budget=budget, dtype=dtype)
         return cls._from_arrays(**cls._prepared(
             mesh, image, size=size, window=window, image_window=image_window, fill=fill,
             background=background, depth=depth, antialias=antialias, alpha=alpha,
@@ -337,25 +338,25 @@ class Renderer(JittableModule):
                 vertices.dtype if vertices.dtype in (np.float32, np.float64) else np.float32)
         dtype = np.dtype(dtype)
         if image is not None:
-            picture = _picture(image, "image")
+            picture = as_picture(image, "image")
             h, w = picture.shape[:2]
-            image_window = (_window(image_window, "image_window") if image_window is not None
+            image_window = (check_window(image_window, "image_window") if image_window is not None
                             else np.array([-0.5, -0.5, w - 0.5, h - 0.5]))
         else:
             if image_window is not None:
                 raise ValueError("image_window places a picture; pass image= too, or drop it.")
-            picture, image_window = _fill(fill, vertices)
+            picture, image_window = fill_texture(fill, vertices)
         if window is None:
             window = (image_window if image is not None
                       else np.array(fit_window(vertices, size)))
             if size is None and image is not None:
                 size = picture.shape[:2]
-        window = _window(window, "window")
+        window = check_window(window, "window")
         if size is None:
             extent = window[2:] - window[:2]
             pixel = extent.max() / 512
             size = tuple(int(max(1, round(e / pixel))) for e in extent[::-1])
-        rows, cols = _size(size)
+        rows, cols = check_size(size)
         texture_points = np.asarray(_host_to_pixels(vertices, image_window,
                                                     *picture.shape[:2]))
         if image is not None:
@@ -424,8 +425,6 @@ class Renderer(JittableModule):
                 to, so that the stack reuses the programs compiled for it (as
                 `Rig.stack`'s `like`).
         """
-        from ._stack import stack_renderers
-
         return stack_renderers(renderers, like)
 
     def __call__(
@@ -474,9 +473,6 @@ class Renderer(JittableModule):
                 `jax.local_devices()` for all of this process's): consecutive chunks go
                 to the devices in turn and are drawn at the same time.
         """
-        from ._progress import progress_bar
-        from .export import to_uint8
-
         n = self.texture_points.shape[0]
         frames = np.asarray(vertices)
         if frames.ndim != 3 or frames.shape[1:] != (n, 2):
@@ -596,8 +592,6 @@ def _draw_batch(renderer: Renderer, frames):
 
 
 def _mesh_of(mesh) -> tuple[np.ndarray, np.ndarray]:
-    from ._rig import Rig, ShapeMesh
-
     if isinstance(mesh, Rig):
         mesh = mesh.shape_mesh
     if isinstance(mesh, ShapeMesh):
@@ -664,7 +658,7 @@ def _check_cover(picture: np.ndarray, texture_points: np.ndarray, vertices: np.n
             "meant to show through a different outline can be made opaque (alpha 1).")
 
 
-def _fill(fill, vertices):
+def fill_texture(fill, vertices):
     """A texture and its window for a shape drawn without a picture."""
     window = np.array(fit_window(vertices, margin=0.0))
     if isinstance(fill, str) and fill == "checkerboard":
@@ -693,7 +687,7 @@ def draw_levels(depth, vertices: np.ndarray, faces: np.ndarray,
     if depth.shape != (len(vertices),) or not np.all(np.isfinite(depth)):
         raise ValueError(f"depth must be {len(vertices)} finite numbers, one per rest "
                          f"vertex of the mesh, got shape {depth.shape}.")
-    levels = min(levels, _key_layout(len(faces))[1])
+    levels = min(levels, key_layout(len(faces))[1])
     face_depth = depth[faces].mean(axis=1)
     order = np.argsort(face_depth, kind="stable")
     # Ranks, not values: equal depths share a band, and no band is left empty.
@@ -704,10 +698,6 @@ def draw_levels(depth, vertices: np.ndarray, faces: np.ndarray,
 
 def _edge_graph(vertices, faces):
     """The mesh's edges as a sparse graph weighted by their rest lengths."""
-    import scipy.sparse
-
-    from ._topology import edges
-
     vertices = np.asarray(vertices, np.float64)
     n = len(vertices)
     pairs = edges(np.asarray(faces))
@@ -726,10 +716,6 @@ def core_depth(vertices: Float[ArrayLike, "n 2"],
         vertices: `(n, 2)` rest vertices.
         faces: `(f, 3)` triangles.
     """
-    import scipy.sparse.csgraph
-
-    from ._topology import boundary_edges
-
     faces = np.asarray(faces)
     graph = _edge_graph(vertices, faces)
     inward = scipy.sparse.csgraph.dijkstra(graph, directed=False, min_only=True,
@@ -743,7 +729,7 @@ def core_depth(vertices: Float[ArrayLike, "n 2"],
     return np.where(np.isfinite(depth), depth, 0.0)
 
 
-def _key_layout(faces: int) -> tuple[int, int]:
+def key_layout(faces: int) -> tuple[int, int]:
     """A candidate's key packs, from the high bits down, the triangle's draw level, its
     coverage of the pixel (in `_COVERAGE_BITS` bits) and the triangle, in an int32: the
     triangle's bits, and how many levels fit above (less one: the raster's second layer
@@ -800,12 +786,12 @@ def stack_tiling(renderers) -> tuple[int, int]:
 @functools.partial(jax.jit, static_argnums=(3, 4, 5))
 def _tiles_across(corners, boundary, window, rows: int, cols: int, antialias: bool):
     # One compiled call at build time (cached by sizes) instead of dozens of eager ones.
-    tri = _to_pixels(corners, window, rows, cols)
+    tri = to_pixels(corners, window, rows, cols)
     fringe = _widest(_fringes(boundary, antialias))
     return [_tiles(tri, fringe, rows, cols, tile)[2] for tile in _TILES]
 
 
-_host_to_pixels = jax.jit(_to_pixels, static_argnums=(2, 3))
+_host_to_pixels = jax.jit(to_pixels, static_argnums=(2, 3))
 
 
 def _fringes(boundary, antialias: bool):
@@ -856,10 +842,26 @@ def _raster(renderer: Renderer, tri, rows: int, cols: int):
 
     The candidates come in chunks of `_CHUNK` tiles, in a loop that stops after the last
     tile the pose needs: the work follows the pose, not a worst case."""
-    count = renderer.faces.shape[0]
-    tile = renderer.tile
+    face_bits, _ = key_layout(renderer.faces.shape[0])
+    table, end, total = _tile_table(renderer, tri, rows, cols)
+    pixels = rows * cols
+    empty = jnp.full((pixels + 1, 2) if renderer.antialias else pixels + 1, -1, jnp.int32)
+    chunks = (total + _CHUNK - 1) // _CHUNK
+    candidates = functools.partial(_chunk_candidates, renderer, table, end, total, face_bits,
+                                   cols, pixels)
+    layers = jax.lax.fori_loop(0, chunks, candidates, empty)
+    if not renderer.antialias:
+        return face_bits, [layers[:-1]]
+    return face_bits, _front_and_back(layers, face_bits)
+
+
+def _tile_table(renderer: Renderer, tri, rows: int, cols: int):
+    """Everything a pixel tile needs from its triangle, in one row per triangle (gathered
+    once per tile: a row costs about what one of its numbers does alone); the running
+    count of tiles at each triangle's end, and the tiles in all (refused past the
+    renderer's budget)."""
     fringe = _fringes(renderer.boundary, renderer.antialias).astype(tri.dtype)
-    first, last, across = _tiles(tri, _widest(fringe), rows, cols, tile)
+    first, last, across = _tiles(tri, _widest(fringe), rows, cols, renderer.tile)
     tiles = across[:, 0] * across[:, 1]
     end = jnp.cumsum(tiles)
     total = end[-1]
@@ -871,11 +873,7 @@ def _raster(renderer: Renderer, tri, rows: int, cols: int):
     )
     normal, offset = _edge_distances(tri)
     boundary = renderer.boundary & renderer.antialias
-    face_bits, _ = _key_layout(count)
-    level = renderer.level
     far = jnp.asarray(1e6, tri.dtype)
-    # Everything a tile needs from its triangle in one row, gathered once per tile (a
-    # row costs about what one of its numbers does alone).
     table = jnp.concatenate([
         normal.reshape(-1, 6),
         offset + fringe,  # inside, fringe included
@@ -884,68 +882,69 @@ def _raster(renderer: Renderer, tri, rows: int, cols: int):
         first.astype(tri.dtype), last.astype(tri.dtype),
         across[:, :1].astype(tri.dtype), (end - tiles)[:, None].astype(tri.dtype),
     ], axis=1)
+    return table, end, total
+
+
+def _chunk_candidates(renderer: Renderer, table, end, total, face_bits: int, cols: int,
+                      pixels: int, index, layers):
+    """`layers` with the candidate pixels of the `index`-th chunk of `_CHUNK` tiles
+    scattered in: each pixel keeps its top key (and, antialiased, its top whole one)."""
+    count, tile = renderer.faces.shape[0], renderer.tile
+    slot = index * _CHUNK + jnp.arange(_CHUNK, dtype=jnp.int32)
+    face = jnp.clip(jnp.searchsorted(end, slot, side="right"), 0, count - 1)
+    data = table[face]
+    first_t = data[:, 15:17].astype(jnp.int32)
+    width = jnp.maximum(data[:, 19].astype(jnp.int32), 1)
+    local = slot - data[:, 20].astype(jnp.int32)
+    # The tile's own numbers, computed once per tile into memory: fused into each
+    # candidate pixel's arithmetic, XLA's CPU backend would redo the tile's lookups
+    # and divisions for each of its pixels, in each of the candidates' consumers.
+    corner = jnp.stack([first_t[:, 0] + (local % width) * tile,
+                        first_t[:, 1] + (local // width) * tile,
+                        jnp.where(slot < total, data[:, 17].astype(jnp.int32), -1),
+                        data[:, 18].astype(jnp.int32),
+                        renderer.level[face] * 2**_COVERAGE_BITS * 2**face_bits + face], axis=1)
+    data, corner = materialise((data, corner))
+    n = data[:, :6].reshape(-1, 3, 2)
+    o_in, o_strict, o_cover = data[:, 6:9], data[:, 9:12], data[:, 12:15]
     offsets = jnp.arange(tile, dtype=jnp.int32)
-    pixels = rows * cols
-
-    def chunk(index, layers):
-        slot = index * _CHUNK + jnp.arange(_CHUNK, dtype=jnp.int32)
-        face = jnp.clip(jnp.searchsorted(end, slot, side="right"), 0, count - 1)
-        data = table[face]
-        first_t = data[:, 15:17].astype(jnp.int32)
-        width = jnp.maximum(data[:, 19].astype(jnp.int32), 1)
-        local = slot - data[:, 20].astype(jnp.int32)
-        # The tile's own numbers, computed once per tile into memory: fused into each
-        # candidate pixel's arithmetic, XLA's CPU backend would redo the tile's lookups
-        # and divisions for each of its pixels, in each of the candidates' consumers.
-        corner = jnp.stack([first_t[:, 0] + (local % width) * tile,
-                            first_t[:, 1] + (local // width) * tile,
-                            jnp.where(slot < total, data[:, 17].astype(jnp.int32), -1),
-                            data[:, 18].astype(jnp.int32),
-                            level[face] * 2**_COVERAGE_BITS * 2**face_bits + face], axis=1)
-        data, corner = materialise((data, corner))
-        n = data[:, :6].reshape(-1, 3, 2)
-        o_in, o_strict, o_cover = data[:, 6:9], data[:, 9:12], data[:, 12:15]
-        col = corner[:, 0, None, None] + offsets[None, None, :]
-        row = corner[:, 1, None, None] + offsets[None, :, None]
-        valid = (col <= corner[:, 2, None, None]) & (row <= corner[:, 3, None, None])
-        pixel = jnp.where(valid, row * cols + col, pixels)
-        x, y = col.astype(tri.dtype), row.astype(tri.dtype)
-        along = [n[:, k, 0, None, None] * x + n[:, k, 1, None, None] * y for k in range(3)]
-        inside, solid = valid, valid
-        for k in range(3):
-            inside = inside & (along[k] + o_in[:, k, None, None] >= 0)
-            solid = solid & (along[k] + o_strict[:, k, None, None] >= 0)
-        # Where several triangles of one level reach a pixel, the one covering it most
-        # wins: the coverage is then the same whichever of two neighbours is drawn.
-        cover = [along[k] + o_cover[:, k, None, None] for k in range(3)]
-        coverage = jnp.clip(0.5 + jnp.minimum(jnp.minimum(cover[0], cover[1]), cover[2]),
-                            0.0, 1.0)
-        steps = jnp.round(coverage * (2**_COVERAGE_BITS - 1)).astype(jnp.int32)
-        key = corner[:, 4, None, None] + steps * 2**face_bits
-        front = jnp.where(inside, key, -1)
-        if not renderer.antialias:
-            return layers.at[pixel].max(front, mode="drop")
-        if renderer.antialias:
-            # The second layer: the top candidate covering the pixel's centre and the
-            # whole pixel, which shows under a partly covering front triangle (its edge
-            # over another part, or over a fold of its own part); a partial front never
-            # is one, even where it covers the centre, so that what lies beneath shows
-            # there too. Where no candidate covers the whole pixel, the one covering it
-            # most whatever its level, which draws the outline there. Whole candidates
-            # rank one level up, above every partial one.
-            whole = solid & (steps == 2**_COVERAGE_BITS - 1)
-            plain = steps * 2**face_bits + jnp.bitwise_and(corner[:, 4, None, None],
-                                                           2**face_bits - 1)
-            second = jnp.where(whole, key + 2**(_COVERAGE_BITS + face_bits),
-                               jnp.where(inside, plain, -1))
-        # Both layers in one scatter, a pair of keys per pixel.
-        return layers.at[pixel].max(jnp.stack([front, second], axis=-1), mode="drop")
-
-    empty = jnp.full((pixels + 1, 2) if renderer.antialias else pixels + 1, -1, jnp.int32)
-    chunks = (total + _CHUNK - 1) // _CHUNK
-    layers = jax.lax.fori_loop(0, chunks, chunk, empty)
+    col = corner[:, 0, None, None] + offsets[None, None, :]
+    row = corner[:, 1, None, None] + offsets[None, :, None]
+    valid = (col <= corner[:, 2, None, None]) & (row <= corner[:, 3, None, None])
+    pixel = jnp.where(valid, row * cols + col, pixels)
+    x, y = col.astype(table.dtype), row.astype(table.dtype)
+    along = [n[:, k, 0, None, None] * x + n[:, k, 1, None, None] * y for k in range(3)]
+    inside, solid = valid, valid
+    for k in range(3):
+        inside = inside & (along[k] + o_in[:, k, None, None] >= 0)
+        solid = solid & (along[k] + o_strict[:, k, None, None] >= 0)
+    # Where several triangles of one level reach a pixel, the one covering it most
+    # wins: the coverage is then the same whichever of two neighbours is drawn.
+    cover = [along[k] + o_cover[:, k, None, None] for k in range(3)]
+    coverage = jnp.clip(0.5 + jnp.minimum(jnp.minimum(cover[0], cover[1]), cover[2]),
+                        0.0, 1.0)
+    steps = jnp.round(coverage * (2**_COVERAGE_BITS - 1)).astype(jnp.int32)
+    key = corner[:, 4, None, None] + steps * 2**face_bits
+    front = jnp.where(inside, key, -1)
     if not renderer.antialias:
-        return face_bits, [layers[:-1]]
+        return layers.at[pixel].max(front, mode="drop")
+    # The second layer: the top candidate covering the pixel's centre and the whole
+    # pixel, which shows under a partly covering front triangle (its edge over another
+    # part, or over a fold of its own part); a partial front never is one, even where it
+    # covers the centre, so that what lies beneath shows there too. Where no candidate
+    # covers the whole pixel, the one covering it most whatever its level, which draws
+    # the outline there. Whole candidates rank one level up, above every partial one.
+    whole = solid & (steps == 2**_COVERAGE_BITS - 1)
+    plain = steps * 2**face_bits + jnp.bitwise_and(corner[:, 4, None, None],
+                                                   2**face_bits - 1)
+    second = jnp.where(whole, key + 2**(_COVERAGE_BITS + face_bits),
+                       jnp.where(inside, plain, -1))
+    # Both layers in one scatter, a pair of keys per pixel.
+    return layers.at[pixel].max(jnp.stack([front, second], axis=-1), mode="drop")
+
+
+def _front_and_back(layers, face_bits: int) -> list:
+    """The pixels' front and back keys from the two scattered layers (`_raster`)."""
     front, beneath = layers[:, 0], layers[:, 1]
     up = 2**(_COVERAGE_BITS + face_bits)
     back = jnp.where(beneath >= up, beneath - up, -1)
@@ -957,14 +956,14 @@ def _raster(renderer: Renderer, tri, rows: int, cols: int):
     partial = jnp.bitwise_and(front >> face_bits, coverage) < coverage
     front = jnp.where(partial & (back < 0), beneath, front)
     back = jnp.where(back == front, -1, back)
-    return face_bits, [front[:-1], back[:-1]]
+    return [front[:-1], back[:-1]]
 
 
 @eqx.filter_jit
 def _draw(renderer: Renderer, vertices, window):
     rows, cols = renderer.shape
     faces = renderer.faces
-    points = _to_pixels(vertices, window, rows, cols)
+    points = to_pixels(vertices, window, rows, cols)
     tri = points[faces]
     # Which triangle a pixel shows is decided without gradients; they flow through the
     # shading (texture position and edge coverage) below.
@@ -1172,3 +1171,64 @@ def render(mesh: Any, vertices: Any, image: Any = None, **options: Any) -> Float
     all with `Renderer.frames`: building measures the mesh and prepares the texture.
     """
     return Renderer.build(mesh, image, **options)(jnp.asarray(vertices))
+
+
+def stack_renderers(renderers: Any, like: Any = None):
+    """One renderer whose arrays have a leading axis over `renderers` (padded to the
+    largest, or like the stack `like`); `Renderer.stack` documents it."""
+    if isinstance(renderers, Renderer) or not isinstance(renderers, Sequence) or not len(
+            renderers):
+        raise TypeError(f"Renderer.stack takes a list of renderers (at least one), got "
+                        f"{type(renderers).__name__}.")
+    for i, r in enumerate(renderers):
+        if not isinstance(r, Renderer):
+            raise TypeError(f"renderers[{i}] is a {type(r).__name__}, not an mvcjax.Renderer "
+                            "(a layered character's renderer does not stack).")
+        if r.window.ndim != 1:
+            raise ValueError(f"renderers[{i}] is a stack already; stack the renderers it was "
+                             "made of with the others.")
+    if like is not None and (not isinstance(like, Renderer) or like.window.ndim != 2):
+        raise TypeError(f"like= takes a stack of renderers (Renderer.stack), got "
+                        f"{type(like).__name__}.")
+    first, other = (renderers[0], "renderers[0]") if like is None else (like, "like=")
+    for i, r in enumerate(renderers):
+        for name, what in [("shape", "picture size (rows, cols)"),
+                           ("antialias", "antialias="), ("see_through", "alpha="),
+                           ]:
+            if getattr(r, name) != getattr(first, name):
+                raise ValueError(
+                    f"renderers[{i}] has {what} {getattr(r, name)}, {other} "
+                    f"{getattr(first, name)}: a stack draws every picture alike; build them "
+                    f"with the same {what.split(' ')[0]}.")
+        if r.texture.dtype != first.texture.dtype:
+            raise ValueError(f"renderers[{i}] is {r.texture.dtype.name}, {other} "
+                             f"{first.texture.dtype.name}: build them with the same dtype=.")
+    sizes = [(r.rest.shape[0], r.faces.shape[0], *r.texture.shape[:2]) for r in renderers]
+    if like is None:
+        tile, budget = stack_tiling(renderers)
+        n, f, h, w = np.max(sizes, axis=0).tolist()
+    else:
+        tile, budget = like.tile, like.budget
+        n, f, h, w = like.rest.shape[1], like.faces.shape[1], *like.texture.shape[1:3]
+        names = ["vertices", "triangles", "picture rows", "picture columns"]
+        over = [f"renderers[{i}] has {a} {k}, like= {b}" for i, size in enumerate(sizes)
+                for k, a, b in zip(names, size, (n, f, h, w)) if a > b]
+        if over:
+            raise ValueError(too_large("; ".join(over[:3])).replace("rigs", "renderers"))
+    padded = []
+    for r in renderers:
+        dtype = r.texture.dtype
+        texture = np.asarray(r.texture)
+        # Edge rows and columns repeated: the texture lookup clamps at its edge, and
+        # reads the same there.
+        texture = np.pad(texture, ((0, h - texture.shape[0]), (0, w - texture.shape[1]),
+                                   (0, 0)), mode="edge")
+        r = dataclasses.replace(r, tile=tile, budget=budget)
+        padded.append(eqx.tree_at(
+            lambda r: (r.faces, r.boundary, r.texture_points, r.texture, r.rest, r.level), r,
+            (to_device(pad_rows(r.faces, f), np.int32), to_device(pad_rows(r.boundary, f), bool),
+             to_device(pad_rows(r.texture_points, n, np.asarray(r.texture_points)[0]), dtype),
+             to_device(texture, dtype),
+             to_device(pad_rows(r.rest, n, np.asarray(r.rest)[0]), dtype),
+             to_device(pad_rows(r.level, f), np.int32))))
+    return stacked(padded)

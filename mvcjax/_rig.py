@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 import equinox as eqx
 import jax
@@ -10,33 +10,118 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from . import _coordinates as coords, _meshing as meshing, _pins, _topology as topology
+from . import _pins
 from ._checks import (
     as_array,
     as_points,
-    check_solver,
     check_targets,
     finite_when_traced,
     kind_of,
     whole_number,
 )
 from ._control import PaperControl, as_control
+from ._coordinates import cross, mean_value_coordinates
 from ._energy import Energy, Term, Weights, check_shape_held, check_weights, total_energy
 from ._factor import AbstractFactor, FactorBySize, as_factor_method
 from ._folds import inverted_count
 from ._handles import Handles, check_handles, make_handles, pin
 from ._ladder import SizeLadder, cut_factor, keep_twin, padded_twin, twin_parts
 from ._local_frame import Frame, bounding_frame, check_representable, frame_array, points_to_local
+from ._meshing import thin_outline, triangulate_shape
 from ._module import JittableModule
 from ._programs import note_size
 from ._shape import Shape
 from ._skinning import BarycentricSkinning, BlendedMVCSkinning, Skinning, as_skinning
-from ._solvers import DEFAULT_SOLVER, AbstractSolver
+from ._solvers import DEFAULT_SOLVER, AbstractSolver, check_solver
 from ._solvers._base import SkinnedMesh
-from ._stack import pad_rows
+from ._stack import pad_rows, stack_rigs
 from ._start import STARTS, start_vertices, turn_weights
 from ._stencils import LAPLACIAN
+from ._topology import interior_edges, vertex_stars
 from ._xla import to_device
+
+
+class _BuildOptions(NamedTuple):
+    """`Rig.build`'s arguments, checked; the handles' points and bones, and the frame
+    that maps the shape to its own unit-size coordinates."""
+
+    points: np.ndarray
+    bones: np.ndarray
+    weights: Weights
+    skinning: Any
+    max_triangles: int
+    control: Any
+    factor: Any
+    dtype: Any
+    frame: tuple
+
+
+def _checked_build_options(shape, handles, weights, skinning, max_triangles, control, factor,
+                           ladder, dtype) -> _BuildOptions:
+    """`Rig.build`'s arguments checked, in the order they are documented."""
+    if not isinstance(shape, Shape):
+        raise TypeError(
+            f"shape must be an mvcjax.Shape, got {type(shape).__name__}; build one with "
+            "Shape.from_polygon(outer, holes) or Shape.from_image(mask)."
+        )
+    dtype = _check_dtype(dtype)
+    points, bones, _ = check_handles(shape, handles)
+    weights = Weights() if weights is None else check_weights(weights)
+    skinning = as_skinning(skinning)
+    max_triangles = whole_number(max_triangles, "max_triangles")
+    control = as_control(control)
+    factor = as_factor_method(factor)
+    if ladder is not None and not isinstance(ladder, SizeLadder):
+        raise TypeError(f"ladder must be an mvcjax.SizeLadder() or None, got "
+                        f"{ladder!r}.")
+    if ladder is not None and weights.mvc is None:
+        raise ValueError(
+            "ladder=SizeLadder() holds each padded control vertex of its twin by a mean "
+            "value row, and Weights(mvc=None) leaves that term out: give it a weight "
+            "(a small one, as the default's, bends nothing: its rows live in the factor "
+            "only), or build without ladder=.")
+    centre, scale = bounding_frame(shape.outer)
+    check_representable(centre, scale, dtype)
+    return _BuildOptions(points, bones, weights, skinning, max_triangles, control, factor,
+                         dtype, (centre, scale))
+
+
+def _meshed_parts(shape: Shape, shape_spacing, options: _BuildOptions) -> tuple:
+    """The shape mesh, the control mesh, the skinning's rows and the handles' rows of a
+    rig, in the shape's own frame (`Rig._assemble` takes them)."""
+    frame = options.frame
+    scale, control = frame[1], options.control
+    local = Shape.from_polygon(points_to_local(shape.outer, frame),
+                               [points_to_local(h, frame) for h in shape.holes])
+    local_points = points_to_local(options.points, frame)
+    control_spacing = getattr(control, "spacing", None)
+    margin = control.margin if isinstance(control, PaperControl) else None
+    shape_spacing, control_spacing, margin = _spacings(
+        local, scale, shape_spacing, control_spacing, margin
+    )
+    _check_mesh_size(local, shape_spacing, scale, options.max_triangles)
+    samples = control.bone_samples(control_spacing, frame)
+    pinned, row_pin, rows = pin(local_points, options.bones, samples, 1e-6)
+    handle_rows = make_handles(local_points, options.bones, rows, options.dtype)
+
+    local = thin_outline(local, shape_spacing)
+    shape_vertices, shape_faces, shape_pinned = triangulate_shape(
+        local, shape_spacing, pinned
+    )
+    parts = control.build(local, shape_vertices, shape_faces, shape_pinned, pinned,
+                          control_spacing, margin, frame)
+    if parts.is_shape_mesh:
+        n = len(shape_vertices)
+        skin = (np.arange(n)[:, None], np.ones((n, 1)), BarycentricSkinning())
+    else:
+        skin_index, skin_weight = options.skinning.weights_at(
+            shape_vertices, parts.vertices, parts.faces, what="shape vertices"
+        )
+        _check_rig(shape_vertices, parts.vertices, parts.faces, skin_index, skin_weight)
+        skin = (skin_index, skin_weight, options.skinning)
+    return ((shape_vertices, shape_faces, shape_pinned[row_pin]),
+            (parts.vertices, parts.faces, parts.loops, parts.inner, parts.pinned[row_pin]),
+            skin, handle_rows)
 
 
 class ShapeMesh(eqx.Module):
@@ -114,7 +199,7 @@ def _length(value, name: str) -> float | None:
     return float(value)
 
 
-def _thickness(shape: Shape) -> float:
+def shape_thickness(shape: Shape) -> float:
     """About how thick the shape is: twice its area over its perimeter (a bar's width, a
     disc's radius)."""
     polygon = shape.polygon
@@ -132,7 +217,7 @@ def _spacings(local: Shape, scale: float, shape_spacing, control_spacing, margin
     if control_spacing is None:
         control_spacing = unit / 8.0
     if shape_spacing is None:
-        shape_spacing = min(unit / 40.0, _thickness(local) / 2.0)
+        shape_spacing = min(unit / 40.0, shape_thickness(local) / 2.0)
     if margin is None:
         margin = control_spacing / 3.0
     return shape_spacing, control_spacing, margin
@@ -145,15 +230,15 @@ def _check_mesh_size(local: Shape, shape_spacing: float, scale: float, max_trian
     shape is thick (its angles stay above 28 degrees), so the count is about the area
     over the area of such a triangle.
     """
-    size = min(shape_spacing, _thickness(local))
+    size = min(shape_spacing, shape_thickness(local))
     estimate = local.area / (np.sqrt(3.0) / 4.0 * size**2)
     if estimate > max_triangles:
-        if shape_spacing <= _thickness(local):
+        if shape_spacing <= shape_thickness(local):
             larger = shape_spacing * scale * np.sqrt(estimate / max_triangles)
             fix = f"pass a larger shape_spacing (about {larger:.3g} for that many)"
         else:
             fix = ("thicken the shape (its triangles cannot be larger than it is thick, "
-                   f"about {_thickness(local) * scale:.3g}; e.g. shape.polygon.buffer)")
+                   f"about {shape_thickness(local) * scale:.3g}; e.g. shape.polygon.buffer)")
         raise ValueError(
             f"The shape mesh would have about {estimate:,.0f} triangles (shape_spacing "
             f"{shape_spacing * scale:.3g}, over an area of {local.area * scale**2:.3g}), more "
@@ -171,7 +256,7 @@ def _check_rig(shape_vertices, control_vertices, control_faces, skin_index, skin
     """What every rig must satisfy, checked once at build time: a failure is a bug, and an
     error now instead of a NaN later."""
     a, b, c = (control_vertices[control_faces[:, k]] for k in range(3))
-    area = coords.cross(b - a, c - a)
+    area = cross(b - a, c - a)
     problems = []
     flat = area <= 1e-14 * np.abs(area).max(initial=0.0)
     if flat.any():
@@ -293,65 +378,10 @@ class Rig(JittableModule):
                 of up to `FactorBySize.max_dense` vertices); a larger rig is built
                 without. Default None: no twin.
         """
-        if not isinstance(shape, Shape):
-            raise TypeError(
-                f"shape must be an mvcjax.Shape, got {type(shape).__name__}; build one with "
-                "Shape.from_polygon(outer, holes) or Shape.from_image(mask)."
-            )
-        dtype = _check_dtype(dtype)
-        points, bones, _ = check_handles(shape, handles)
-        weights = Weights() if weights is None else check_weights(weights)
-        skinning = as_skinning(skinning)
-        max_triangles = whole_number(max_triangles, "max_triangles")
-        control = as_control(control)
-        factor = as_factor_method(factor)
-        if ladder is not None and not isinstance(ladder, SizeLadder):
-            raise TypeError(f"ladder must be an mvcjax.SizeLadder() or None, got "
-                            f"{ladder!r}.")
-        if ladder is not None and weights.mvc is None:
-            raise ValueError(
-                "ladder=SizeLadder() holds each padded control vertex of its twin by a mean "
-                "value row, and Weights(mvc=None) leaves that term out: give it a weight "
-                "(a small one, as the default's, bends nothing: its rows live in the factor "
-                "only), or "
-                "build without ladder=.")
-
-        centre, scale = bounding_frame(shape.outer)
-        check_representable(centre, scale, dtype)
-        frame = (centre, scale)
-        local = Shape.from_polygon(points_to_local(shape.outer, frame),
-                                   [points_to_local(h, frame) for h in shape.holes])
-        local_points = points_to_local(points, frame)
-        control_spacing = getattr(control, "spacing", None)
-        margin = control.margin if isinstance(control, PaperControl) else None
-        shape_spacing, control_spacing, margin = _spacings(
-            local, scale, shape_spacing, control_spacing, margin
-        )
-        _check_mesh_size(local, shape_spacing, scale, max_triangles)
-        samples = control.bone_samples(control_spacing, frame)
-        pinned, row_pin, rows = pin(local_points, bones, samples, 1e-6)
-        handle_rows = make_handles(local_points, bones, rows, dtype)
-
-        local = meshing.thin_outline(local, shape_spacing)
-        shape_vertices, shape_faces, shape_pinned = meshing.triangulate_shape(
-            local, shape_spacing, pinned
-        )
-        parts = control.build(local, shape_vertices, shape_faces, shape_pinned, pinned,
-                              control_spacing, margin, frame)
-        if parts.is_shape_mesh:
-            n = len(shape_vertices)
-            skin = (np.arange(n)[:, None], np.ones((n, 1)), BarycentricSkinning())
-        else:
-            skin_index, skin_weight = skinning.weights_at(
-                shape_vertices, parts.vertices, parts.faces, what="shape vertices"
-            )
-            _check_rig(shape_vertices, parts.vertices, parts.faces, skin_index, skin_weight)
-            skin = (skin_index, skin_weight, skinning)
-        return cls._assemble(
-            (shape_vertices, shape_faces, shape_pinned[row_pin]),
-            (parts.vertices, parts.faces, parts.loops, parts.inner, parts.pinned[row_pin]),
-            skin, handle_rows, weights, factor, dtype, frame, ladder,
-        )
+        options = _checked_build_options(shape, handles, weights, skinning, max_triangles,
+                                         control, factor, ladder, dtype)
+        return cls._assemble(*_meshed_parts(shape, shape_spacing, options), options.weights,
+                             options.factor, options.dtype, options.frame, ladder)
 
     @classmethod
     def _assemble(cls, shape_mesh, control_mesh, skinning, handles, weights, factor, dtype,
@@ -412,9 +442,7 @@ class Rig(JittableModule):
                 a stack of the largest compile once. A rig that does not fit is
                 refused.
         """
-        from ._stack import stack_rigs
-
-        return stack_rigs(rigs, like)
+        return stack_rigs(rigs, like, cls)
 
     @property
     def stacked(self) -> int | None:
@@ -729,7 +757,7 @@ def _traced(*trees) -> bool:
     return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(trees))
 
 
-def _compiled_when_eager(fn):
+def compiled_when_eager(fn):
     """`fn(rig, targets, solver, init)`, compiled with the rig as an argument when called
     outside any transformation, inline inside one (the caller's `jit` compiles it).
 
@@ -770,14 +798,14 @@ def _as_twin(rows):
 
 
 @_as_twin(lambda rig: rig.energy.rest.shape[0])
-@_compiled_when_eager
+@compiled_when_eager
 def _solve(rig: Rig, targets, solver: AbstractSolver, init):
     vertices, info = solve_in_frame(rig, targets, solver, init)
     return rig.frame.to_world(vertices), info
 
 
 @_as_twin(lambda rig: rig.shape_mesh.vertices.shape[0])
-@_compiled_when_eager
+@compiled_when_eager
 def _deform(rig: Rig, targets, solver: AbstractSolver, init):
     vertices, info = solve_in_frame(rig, targets, solver, init)
     return rig.skinning(vertices, rig.frame), info
@@ -797,10 +825,10 @@ def _energy_data(vertices, faces, loops, inner, handles, weights, dtype) -> Ener
     # Laplacian; rounding leaves ~1e-17, whose target would turn with the noise of a
     # still-straight side (and its derivative with it): zero.
     lap_length[lap_length < STRAIGHT] = 0.0
-    stars, star_valid = topology.vertex_stars(faces, len(vertices))
+    stars, star_valid = vertex_stars(faces, len(vertices))
     ring, valid = stars[inner], star_valid[inner]  # an inner vertex's star is its 1-ring
-    ring_weight = coords.mean_value_coordinates(vertices[inner], vertices[ring], valid)
-    edges = topology.interior_edges(faces, loops)  # H: every edge off the polygon V_CP
+    ring_weight = mean_value_coordinates(vertices[inner], vertices[ring], valid)
+    edges = interior_edges(faces, loops)  # H: every edge off the polygon V_CP
     edge_length = np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1)
     return Energy(
         rest=_array(vertices, dtype),

@@ -12,6 +12,7 @@ import shapely.ops
 from jaxtyping import Float
 
 from ._checks import as_array, as_points, kind_of
+from ._image import image_mask, is_pil_image
 
 
 def _as_ring(points, name: str) -> np.ndarray:
@@ -126,6 +127,107 @@ def points_to_pixels(points: Any, rows: int) -> Float[np.ndarray, "*n 2"]:
     positions `(row, col)`, the inverse of `pixels_to_points`."""
     points = np.asarray(points, np.float64)
     return np.stack([rows - 1 - points[..., 1], points[..., 0]], axis=-1)
+
+
+def _picture_or_mask(image, alpha_threshold, background, key_tolerance):
+    """The mask `Shape.from_image` traces: `image` itself, or a picture's `image_mask`;
+    the picture-only options are refused with a mask unless left at their defaults."""
+    picture = isinstance(image, (str, os.PathLike)) or is_pil_image(image)
+    if not picture:
+        image = as_array(image, "image", "a 2D mask or a picture (rows, cols[, channels])")
+        picture = image.ndim == 3 and image.dtype.kind != "b"
+        if image.ndim == 3 and image.dtype.kind == "b":
+            raise ValueError(f"mask must be a 2D image, got booleans of shape {image.shape}; "
+                             "a picture holds numbers, (rows, cols, 3) RGB or (rows, cols, "
+                             "4) RGBA.")
+    if picture:
+        return image_mask(image, alpha_threshold=alpha_threshold, background=background,
+                          key_tolerance=key_tolerance)
+    given = [f"{name}={value!r}" for name, value, default in [
+        ("alpha_threshold", alpha_threshold, 0.5), ("background", background, None),
+        ("key_tolerance", key_tolerance, 0.1)] if not _is_default(value, default)]
+    if given:
+        them, apply = ("them", "apply") if len(given) > 1 else ("it", "applies")
+        raise ValueError(f"{', '.join(given)} only {apply} to a picture (RGB or RGBA), "
+                         "but image is a 2D mask, foreground where true; drop "
+                         f"{them}, or pass the picture itself.")
+    return image
+
+
+def _check_mask(mask: np.ndarray) -> None:
+    """Refuse a mask that is not 2D, not boolean or numeric, or has NaN or infinite pixels."""
+    if mask.ndim != 2:
+        raise ValueError(f"mask must be a 2D image, or a picture (rows, cols, 3) RGB or "
+                         f"(rows, cols, 4) RGBA, got an array of shape {mask.shape}.")
+    if mask.dtype.kind not in "biuf":
+        raise TypeError(f"mask must be a boolean or numeric image, got {kind_of(mask)}; "
+                        "pass e.g. image > threshold.")
+    if mask.dtype.kind == "f" and not np.all(np.isfinite(mask)):
+        bad = int(np.sum(~np.isfinite(mask)))
+        raise ValueError(f"mask has {bad} NaN or infinite pixels, which are neither "
+                         "foreground nor background; replace them first (np.nan_to_num, "
+                         "or a threshold such as np.nan_to_num(mask) > 0.5).")
+
+
+def _check_tolerances(tolerance, min_hole_area) -> None:
+    """Refuse a `tolerance` or `min_hole_area` that is not a finite number >= 0."""
+    for name, value in [("tolerance", tolerance), ("min_hole_area", min_hole_area)]:
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer,
+                                                              np.floating)):
+            raise TypeError(f"{name} must be a number >= 0, got {value!r}.")
+        if not np.isfinite(value) or value < 0:
+            raise ValueError(f"{name} must be a finite number >= 0, got {value}.")
+
+
+def _foreground(mask: np.ndarray) -> np.ndarray:
+    """The mask as booleans, refused when it is all background or all foreground (no
+    outline either way)."""
+    mask = mask.astype(bool)
+    if not mask.any():
+        raise ValueError("mask has no foreground pixel; pass a mask that is true on the shape.")
+    if mask.all():
+        raise ValueError(
+            "mask is foreground everywhere, so it has no outline; if the shape is dark "
+            "on a light background, pass the inverted mask (~mask)."
+        )
+    return mask
+
+
+def _one_component(mask: np.ndarray, component) -> np.ndarray:
+    """The mask of one 4-connected foreground component, counted from the largest;
+    `component` is required when there are several."""
+    from skimage import measure
+
+    labels, count = measure.label(mask, connectivity=1, return_num=True)
+    _check_component(component, count, "component")
+    if count > 1:
+        sizes = np.bincount(labels.ravel())[1:]
+        order = np.argsort(-sizes, kind="stable")
+        if component is None:
+            raise ValueError(
+                f"mask has {count} separate foreground components (sizes "
+                f"{sorted(sizes.tolist(), reverse=True)[:5]} pixels, largest first); "
+                "pick one with component=0 for the largest, component=1 for the next, "
+                "or clean the mask (e.g. skimage.morphology.remove_small_objects)."
+            )
+        mask = labels == order[component] + 1
+    return mask
+
+
+def _pixel_outline(mask: np.ndarray, min_hole_area) -> tuple[np.ndarray, list, float]:
+    """The mask's outline along the pixel boundaries, in shape coordinates: the outer
+    ring, the holes of at least `min_hole_area`, and the area they enclose."""
+    from skimage import measure
+
+    rows = mask.shape[0]
+    padded = np.pad(mask, 1).astype(np.float64)
+    contours = measure.find_contours(padded, 0.5)
+    rings = [pixels_to_points(c - 1.0, rows) for c in contours]  # unpadded
+    areas = [abs(shapely.Polygon(r).area) for r in rings]
+    order = np.argsort(areas)[::-1]
+    outer = rings[order[0]]
+    holes = [rings[i] for i in order[1:] if areas[i] > min_hole_area]
+    return outer, holes, areas[order[0]] - sum(shapely.Polygon(h).area for h in holes)
 
 
 class Shape:
@@ -283,89 +385,29 @@ class Shape:
 
         The picture-only options are refused with a mask, unless left at their defaults.
         """
-        from skimage import measure
-
-        from ._image import _is_pil_image, image_mask
-
-        picture = isinstance(image, (str, os.PathLike)) or _is_pil_image(image)
-        if not picture:
-            image = as_array(image, "image", "a 2D mask or a picture (rows, cols[, channels])")
-            picture = image.ndim == 3 and image.dtype.kind != "b"
-            if image.ndim == 3 and image.dtype.kind == "b":
-                raise ValueError(f"mask must be a 2D image, got booleans of shape {image.shape}; "
-                                 "a picture holds numbers, (rows, cols, 3) RGB or (rows, cols, "
-                                 "4) RGBA.")
-        if picture:
-            mask = image_mask(image, alpha_threshold=alpha_threshold, background=background,
-                              key_tolerance=key_tolerance)
-        else:
-            given = [f"{name}={value!r}" for name, value, default in [
-                ("alpha_threshold", alpha_threshold, 0.5), ("background", background, None),
-                ("key_tolerance", key_tolerance, 0.1)] if not _is_default(value, default)]
-            if given:
-                them, apply = ("them", "apply") if len(given) > 1 else ("it", "applies")
-                raise ValueError(f"{', '.join(given)} only {apply} to a picture (RGB or RGBA), "
-                                 "but image is a 2D mask, foreground where true; drop "
-                                 f"{them}, or pass the picture itself.")
-            mask = image
-        if mask.ndim != 2:
-            raise ValueError(f"mask must be a 2D image, or a picture (rows, cols, 3) RGB or "
-                             f"(rows, cols, 4) RGBA, got an array of shape {mask.shape}.")
-        if mask.dtype.kind not in "biuf":
-            raise TypeError(f"mask must be a boolean or numeric image, got {kind_of(mask)}; "
-                            "pass e.g. image > threshold.")
-        if mask.dtype.kind == "f" and not np.all(np.isfinite(mask)):
-            bad = int(np.sum(~np.isfinite(mask)))
-            raise ValueError(f"mask has {bad} NaN or infinite pixels, which are neither "
-                             "foreground nor background; replace them first (np.nan_to_num, "
-                             "or a threshold such as np.nan_to_num(mask) > 0.5).")
-        for name, value in [("tolerance", tolerance), ("min_hole_area", min_hole_area)]:
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer,
-                                                                  np.floating)):
-                raise TypeError(f"{name} must be a number >= 0, got {value!r}.")
-            if not np.isfinite(value) or value < 0:
-                raise ValueError(f"{name} must be a finite number >= 0, got {value}.")
-        mask = mask.astype(bool)
-        if not mask.any():
-            raise ValueError("mask has no foreground pixel; pass a mask that is true on the shape.")
-        if mask.all():
-            raise ValueError(
-                "mask is foreground everywhere, so it has no outline; if the shape is dark "
-                "on a light background, pass the inverted mask (~mask)."
-            )
-        labels, count = measure.label(mask, connectivity=1, return_num=True)
-        _check_component(component, count, "component")
-        if count > 1:
-            sizes = np.bincount(labels.ravel())[1:]
-            order = np.argsort(-sizes, kind="stable")
-            if component is None:
-                raise ValueError(
-                    f"mask has {count} separate foreground components (sizes "
-                    f"{sorted(sizes.tolist(), reverse=True)[:5]} pixels, largest first); "
-                    "pick one with component=0 for the largest, component=1 for the next, "
-                    "or clean the mask (e.g. skimage.morphology.remove_small_objects)."
-                )
-            mask = labels == order[component] + 1
-
-        rows = mask.shape[0]
-        padded = np.pad(mask, 1).astype(np.float64)
-        contours = measure.find_contours(padded, 0.5)
-        rings = [pixels_to_points(c - 1.0, rows) for c in contours]  # unpadded
-        areas = [abs(shapely.Polygon(r).area) for r in rings]
-        order = np.argsort(areas)[::-1]
-        outer_raw = rings[order[0]]
-        holes_raw = [rings[i] for i in order[1:] if areas[i] > min_hole_area]
-        raw_area = areas[order[0]] - sum(shapely.Polygon(h).area for h in holes_raw)
+        mask = _picture_or_mask(image, alpha_threshold, background, key_tolerance)
+        _check_mask(mask)
+        _check_tolerances(tolerance, min_hole_area)
+        mask = _one_component(_foreground(mask), component)
+        outer, holes, area = _pixel_outline(mask, min_hole_area)
         # Beyond the image's size a tolerance simplifies no further, only halves longer.
         tol = min(float(tolerance), float(np.hypot(*mask.shape)))
+        return cls._simplified(outer, holes, area, tol)
+
+    @classmethod
+    def _simplified(cls, outer, holes, area: float, tol: float) -> Shape:
+        """The shape of the pixel outline simplified by Douglas-Peucker at `tol`, halving
+        `tol` until the outline stays simple and keeps its area `area` within 2%."""
+        from skimage import measure
+
         while True:
             simple = [measure.approximate_polygon(r, tol) if tol > 0 else r
-                      for r in (outer_raw, *holes_raw)]
+                      for r in (outer, *holes)]
             try:
                 shape = cls(simple[0], simple[1:])
                 # A shape one pixel thin collapses under simplification (a one-pixel
                 # line became a triangle of half its area).
-                if tol <= 0 or abs(shape.area - raw_area) <= 0.02 * raw_area:
+                if tol <= 0 or abs(shape.area - area) <= 0.02 * area:
                     return shape
             except ValueError:
                 if tol <= 0:

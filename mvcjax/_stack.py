@@ -18,7 +18,6 @@ The padding changes no result, only the arrays' sizes:
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 from typing import Any
 
@@ -26,7 +25,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from ._factor import DenseFactor, _local_stencil, dense_factor
+from ._factor import DenseFactor, dense_factor, local_stencil
 from ._programs import note_size
 from ._skinning import (
     BLOCK_ROWS,
@@ -67,7 +66,7 @@ class _TooLarge(ValueError):
     """A rig larger than the stack it is to be padded like."""
 
 
-def _stacked(trees: list) -> Any:
+def stacked(trees: list) -> Any:
     """The trees' leaves stacked, on the host (stacking on the device compiles a program
     for every leaf's shape)."""
     return jax.tree.map(lambda *leaves: to_device(np.stack([np.asarray(x) for x in leaves]),
@@ -102,7 +101,7 @@ def common_sizes(rigs: Sequence[Any]) -> dict[str, int]:
     return common
 
 
-def _padded_energy(energy, sizes: dict[str, int]):
+def padded_energy(energy, sizes: dict[str, int]):
     e = energy
     c0, c = e.rest.shape[0], sizes["control_vertices"]
     g, w = sizes["mvc"], sizes["ring"]
@@ -143,7 +142,7 @@ def _padded_rows(skinning: Skinning, count: int, width: int):
             pad_rows(_columns(weight, width), count, _columns(weight, width)[0]))
 
 
-def _skinnings(rigs, sizes: dict[str, int], like: Skinning | None,
+def padded_skinnings(rigs, sizes: dict[str, int], like: Skinning | None,
                shapes=None) -> list[Skinning]:
     """The rigs' skinnings packed alike: one tile size, tiles and blocks padded with
     zero weights to the largest count and width (or to those of `like`, a stack's; or
@@ -180,7 +179,7 @@ def _skinnings(rigs, sizes: dict[str, int], like: Skinning | None,
     return out
 
 
-def _factors(energies, width: int | None, round_width=None) -> list[DenseFactor]:
+def padded_factors(energies, width: int | None, round_width=None) -> list[DenseFactor]:
     """Dense factors of the padded energies, their spread tables padded alike (with the
     entry past the last, whose coefficient is zero) to the widest (rounded up by
     `round_width`, if given) or to `width`: one size, so one compiled program for them all.
@@ -189,7 +188,7 @@ def _factors(energies, width: int | None, round_width=None) -> list[DenseFactor]
     vectors, and listed they would make the table as wide as their count."""
     spreads = []
     for energy in energies:
-        rows, coef = (np.asarray(a) for a in _local_stencil(energy))
+        rows, coef = (np.asarray(a) for a in local_stencil(energy))
         zero = (rows == rows[:, :1]).all(axis=1)
         spreads.append((transpose_table(rows, np.where(zero[:, None], 0.0, coef),
                                         energy.num_vertices), rows.size))
@@ -203,7 +202,7 @@ def _factors(energies, width: int | None, round_width=None) -> list[DenseFactor]
             for e, (s, past) in zip(energies, spreads)]
 
 
-def _pad_rig(rig, sizes: dict[str, int], skinning: Skinning, factor: DenseFactor, energy):
+def pad_rig(rig, sizes: dict[str, int], skinning: Skinning, factor: DenseFactor, energy):
     """`rig` padded to `sizes`, with its padded skinning, factor and energy."""
     n, r, c = sizes["shape_vertices"], sizes["pinned"], sizes["control_vertices"]
     h, sm, cm = rig.handles, rig.shape_mesh, rig.control_mesh
@@ -227,9 +226,7 @@ def _pad_rig(rig, sizes: dict[str, int], skinning: Skinning, factor: DenseFactor
          real(_columns(pad_rows(rig.turns, c, np.asarray(rig.turns)[0]), r))))
 
 
-def _check_stackable(rigs) -> None:
-    from ._rig import Rig
-
+def _check_stackable(rigs, Rig) -> None:
     if isinstance(rigs, Rig) or not isinstance(rigs, Sequence) or not len(rigs):
         raise TypeError(f"Rig.stack takes a list of rigs (at least one), got "
                         f"{type(rigs).__name__}.")
@@ -271,19 +268,19 @@ def _check_stackable(rigs) -> None:
                 "factor only).")
 
 
-def stack_rigs(rigs: Any, like: Any = None):
-    """One rig whose every array has a leading axis over `rigs`, padded to common sizes
-    (see the module's docstring), or to those of the stack `like`; `Rig.stack`
-    documents it."""
-    _check_stackable(rigs)
+def stack_rigs(rigs: Any, like: Any, kind: type):
+    """One rig whose every array has a leading axis over `rigs` (each of class `kind`),
+    padded to common sizes (see the module's docstring), or to those of the stack `like`;
+    `Rig.stack` documents it."""
+    _check_stackable(rigs, kind)
     sizes = common_sizes(rigs)
     if like is not None:
-        _check_like(rigs, like)
+        _check_like(rigs, like, kind)
         given = {**_sizes(like), "mvc": like.energy.mvc_centre.shape[-1]}
         over = [f"{k.replace('_', ' ')} {sizes[k]} > {given[k]}" for k in sizes
                 if sizes[k] > given[k]]
         if over:
-            raise ValueError(_too_large(", ".join(over)))
+            raise ValueError(too_large(", ".join(over)))
         sizes = given
     c, itemsize = sizes["control_vertices"], rigs[0].energy.rest.dtype.itemsize
     # G's two parts, N and its inverse: about five c x c matrices a rig.
@@ -294,28 +291,26 @@ def stack_rigs(rigs: Any, like: Any = None):
             f"of about {factor_bytes / 2**30:.1f} GiB (a stack solves with a dense G, "
             "whatever each rig's factor): stack fewer rigs at a time, or build them with "
             "a coarser PaperControl(spacing=...).")
-    energies = [_padded_energy(r.energy, sizes) for r in rigs]
+    energies = [padded_energy(r.energy, sizes) for r in rigs]
     try:
-        skinnings = _skinnings(rigs, sizes, None if like is None else like.skinning)
-        factors = _factors(energies, None if like is None else like.factor.spread.shape[-1])
+        skinnings = padded_skinnings(rigs, sizes, None if like is None else like.skinning)
+        factors = padded_factors(energies, None if like is None else like.factor.spread.shape[-1])
     except _TooLarge as e:
-        raise ValueError(_too_large(str(e))) from None
-    padded = [_pad_rig(r, sizes, s, f, e)
+        raise ValueError(too_large(str(e))) from None
+    padded = [pad_rig(r, sizes, s, f, e)
               for r, s, f, e in zip(rigs, skinnings, factors, energies)]
-    stack = _stacked(padded)
+    stack = stacked(padded)
     note_size(stack)  # a bounded number of sizes' programs kept (`_programs`)
     return stack
 
 
-def _too_large(what: str) -> str:
+def too_large(what: str) -> str:
     return (f"These rigs do not fit the sizes of the stack given as like= ({what}): stack "
             "them without like=, or make like= a stack of larger rigs (the largest of all "
             "the batches, say).")
 
 
-def _check_like(rigs, like) -> None:
-    from ._rig import Rig
-
+def _check_like(rigs, like, Rig) -> None:
     if not isinstance(like, Rig) or like.stacked is None:
         raise TypeError(f"like= takes a stack (Rig.stack), got {type(like).__name__}"
                         + ("" if not isinstance(like, Rig) else " (a single rig)") + ".")
@@ -328,66 +323,3 @@ def _check_like(rigs, like) -> None:
     if not same:
         raise ValueError("like= is a stack of rigs with another handles' layout, dtype or "
                          "skinning method than these: stack like rigs like it.")
-
-
-def stack_renderers(renderers: Any, like: Any = None):
-    """One renderer whose arrays have a leading axis over `renderers` (padded to the
-    largest, or like the stack `like`); `Renderer.stack` documents it."""
-    from ._render import Renderer, stack_tiling
-
-    if isinstance(renderers, Renderer) or not isinstance(renderers, Sequence) or not len(
-            renderers):
-        raise TypeError(f"Renderer.stack takes a list of renderers (at least one), got "
-                        f"{type(renderers).__name__}.")
-    for i, r in enumerate(renderers):
-        if not isinstance(r, Renderer):
-            raise TypeError(f"renderers[{i}] is a {type(r).__name__}, not an mvcjax.Renderer "
-                            "(a layered character's renderer does not stack).")
-        if r.window.ndim != 1:
-            raise ValueError(f"renderers[{i}] is a stack already; stack the renderers it was "
-                             "made of with the others.")
-    if like is not None and (not isinstance(like, Renderer) or like.window.ndim != 2):
-        raise TypeError(f"like= takes a stack of renderers (Renderer.stack), got "
-                        f"{type(like).__name__}.")
-    first, other = (renderers[0], "renderers[0]") if like is None else (like, "like=")
-    for i, r in enumerate(renderers):
-        for name, what in [("shape", "picture size (rows, cols)"),
-                           ("antialias", "antialias="), ("see_through", "alpha="),
-                           ]:
-            if getattr(r, name) != getattr(first, name):
-                raise ValueError(
-                    f"renderers[{i}] has {what} {getattr(r, name)}, {other} "
-                    f"{getattr(first, name)}: a stack draws every picture alike; build them "
-                    f"with the same {what.split(' ')[0]}.")
-        if r.texture.dtype != first.texture.dtype:
-            raise ValueError(f"renderers[{i}] is {r.texture.dtype.name}, {other} "
-                             f"{first.texture.dtype.name}: build them with the same dtype=.")
-    sizes = [(r.rest.shape[0], r.faces.shape[0], *r.texture.shape[:2]) for r in renderers]
-    if like is None:
-        tile, budget = stack_tiling(renderers)
-        n, f, h, w = np.max(sizes, axis=0).tolist()
-    else:
-        tile, budget = like.tile, like.budget
-        n, f, h, w = like.rest.shape[1], like.faces.shape[1], *like.texture.shape[1:3]
-        names = ["vertices", "triangles", "picture rows", "picture columns"]
-        over = [f"renderers[{i}] has {a} {k}, like= {b}" for i, size in enumerate(sizes)
-                for k, a, b in zip(names, size, (n, f, h, w)) if a > b]
-        if over:
-            raise ValueError(_too_large("; ".join(over[:3])).replace("rigs", "renderers"))
-    padded = []
-    for r in renderers:
-        dtype = r.texture.dtype
-        texture = np.asarray(r.texture)
-        # Edge rows and columns repeated: the texture lookup clamps at its edge, and
-        # reads the same there.
-        texture = np.pad(texture, ((0, h - texture.shape[0]), (0, w - texture.shape[1]),
-                                   (0, 0)), mode="edge")
-        r = dataclasses.replace(r, tile=tile, budget=budget)
-        padded.append(eqx.tree_at(
-            lambda r: (r.faces, r.boundary, r.texture_points, r.texture, r.rest, r.level), r,
-            (to_device(pad_rows(r.faces, f), np.int32), to_device(pad_rows(r.boundary, f), bool),
-             to_device(pad_rows(r.texture_points, n, np.asarray(r.texture_points)[0]), dtype),
-             to_device(texture, dtype),
-             to_device(pad_rows(r.rest, n, np.asarray(r.rest)[0]), dtype),
-             to_device(pad_rows(r.level, f), np.int32))))
-    return _stacked(padded)

@@ -4,16 +4,17 @@ default handles and a drag; `model(name)` bundles them with their `Rig.build` op
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING
 
 import numpy as np
 import shapely
 from shapely import affinity
 
+from ._control import PaperControl
+from ._handles import Bone, parse_handles
+from ._image import load_image
+from ._layers import Layer
+from ._rig import Rig
 from ._shape import Shape
-
-if TYPE_CHECKING:
-    from ._rig import Rig
 
 
 def horse(tolerance: float = 1.0) -> Shape:
@@ -245,8 +246,6 @@ class Model:
         (e.g. `dtype=jnp.float32`, `skinning=mvcjax.MVCSkinning()`)."""
         # Imported here: loading the datasets should not pull in JAX, nor make a cycle
         # through the package's __init__, which imports this module first.
-        from ._rig import Rig
-
         return Rig.build(self.shape, self.handles, **{**self.options, **overrides})
 
 
@@ -286,8 +285,6 @@ def model(name: str) -> Model:
     handles, drag = make_handles(), make_drag()
     handles.setflags(write=False)
     drag.setflags(write=False)
-    from ._control import PaperControl
-
     sizes = dict(_OPTIONS[name])
     options = ({"shape_spacing": sizes.pop("shape_spacing"), "control": PaperControl(**sizes)}
                if sizes else {})
@@ -313,8 +310,6 @@ def character_bones(limbs: str = "arms") -> list:
     points and bone ends are those of `character_handles()` and the character's
     shoulders and hips, which lie inside the torso.
     """
-    from ._handles import Bone
-
     h = character_handles()
     head, pelvis = tuple(h[0]), tuple(h[1])
     if limbs == "arms":
@@ -426,8 +421,6 @@ def sprite_handles() -> list:
     and a point on each foot's toe. Target rows: chest, left shoulder, left wrist,
     right shoulder, right wrist, left hip, left ankle, right hip, right ankle, left
     toe, right toe (11)."""
-    from ._handles import Bone
-
     def inward(end, root, by):
         d = np.asarray(root) - end
         return end + by * d / np.linalg.norm(d)
@@ -461,9 +454,6 @@ def layered_figure() -> list:
     a disc past the right arm's tip. `layered_figure_handles()` pins it; the right hand
     holds no handle and follows the right arm.
     """
-    from ._image import load_image
-    from ._layers import Layer
-
     hands, radius = _sprite_hands(_FIGURE_ARM_OUT), _SPRITE_ARM[2]
 
     def left_arm(draw):
@@ -489,8 +479,6 @@ def layered_figure_handles() -> list:
     there) to its wrist (left, then right), and a point on each ankle. Target rows:
     chest, left shoulder, left wrist, right shoulder, right wrist, left ankle, right
     ankle (7)."""
-    from ._handles import Bone
-
     def inward(end, root):
         d = np.asarray(root) - end
         return end + _FIGURE_WRIST_IN * d / np.linalg.norm(d)
@@ -505,8 +493,6 @@ def layered_figure_wave(frames: int = 30, degrees: float = 110.0) -> np.ndarray:
     """`(frames, 7, 2)` targets for `layered_figure_handles()`: the right arm swings
     about its shoulder across the chest, `degrees` clockwise, and back down, everything
     else at rest."""
-    from ._handles import parse_handles
-
     rest, _, _ = parse_handles(layered_figure_handles())
     shoulder = rest[3]
     turn = np.radians(degrees) * np.sin(np.linspace(0.0, np.pi, frames))
@@ -556,8 +542,6 @@ def snake_handles(length: float = _SNAKE[0], width: float = _SNAKE[1],
     between them and the head, and a `Bone` along the head end (its last tenth, from
     the back of the head to the snout). Target rows: the tail points, the points along
     the body, then the bone's start and end."""
-    from ._handles import Bone
-
     r = width / 2.0
     tail = [r + 0.5 * r, r + 0.5 * r + 0.075 * length]
     head = (length - r - 0.1 * length, length - r - 0.2 * r)

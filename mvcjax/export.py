@@ -25,6 +25,14 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from ._checks import as_points, kind_of
+from ._pictures import (
+    as_matte_rgb,
+    byte_values,
+    check_channels,
+    check_values,
+    to_bytes,
+    to_uint8,
+)
 from ._progress import progress_bar
 from ._topology import boundary_loops
 
@@ -68,43 +76,16 @@ def _format_of(path, formats: dict[str, str], function: str) -> tuple[Path, str]
     return path, formats[suffix]
 
 
-def _check_values(picture: np.ndarray, name: str) -> None:
-    """Refuse dtypes other than float and uint8, and floats that are NaN or outside [0, 1]."""
-    if picture.dtype == np.uint8:
-        return
-    if picture.dtype.kind != "f":
-        hint = (" If the values are 0-255, convert with .astype(np.uint8)."
-                if picture.dtype.kind in "iub" else "")
-        raise TypeError(f"{name} must be float in [0, 1] or uint8, got {kind_of(picture)} "
-                        f"({picture.dtype}).{hint}")
-    if picture.size == 0:
-        return
-    # min and max propagate NaN: two passes cover NaN, infinities and the range.
-    lo, hi = float(np.min(picture)), float(np.max(picture))
-    if math.isnan(lo) or math.isnan(hi):
-        raise ValueError(f"{name} contains NaN values; give finite values in [0, 1] "
-                         "(e.g. np.nan_to_num(x, nan=0.0)).")
-    if lo < 0.0 or hi > 1.0:
-        raise ValueError(f"{name} has values in [{lo:g}, {hi:g}], outside [0, 1]: float "
-                         "pictures must lie in [0, 1] (np.clip(x, 0, 1)), or pass uint8.")
-
-
-def _check_channels(shape: tuple[int, ...], name: str, expected: str) -> None:
-    if shape[-1] not in (3, 4):
-        raise ValueError(f"{name} has shape {shape}: expected {expected}, the last axis 3 "
-                         "(RGB) or 4 (RGBA) channels.")
-
-
 def _as_picture(picture, name: str = "picture") -> np.ndarray:
     array = np.asarray(picture)
     if array.ndim != 3:
         raise ValueError(f"{name} must have shape (rows, cols, 3) or (rows, cols, 4), got shape "
                          f"{array.shape}.")
-    _check_channels(array.shape, name, "(rows, cols, 3 or 4)")
+    check_channels(array.shape, name, "(rows, cols, 3 or 4)")
     if array.shape[0] == 0 or array.shape[1] == 0:
         raise ValueError(f"{name} has shape {array.shape}: it must have at least one row and "
                          "one column.")
-    _check_values(array, name)
+    check_values(array, name)
     return array
 
 
@@ -144,27 +125,6 @@ def _as_frames(frames) -> list[np.ndarray]:
     return items
 
 
-def _matte_rgb(matte) -> np.ndarray:
-    """A colour name, '#rrggbb' or 3 floats in [0, 1], as float32 RGB in [0, 1]."""
-    if isinstance(matte, str):
-        from PIL import ImageColor
-
-        try:
-            rgb = ImageColor.getrgb(matte)[:3]
-        except ValueError:
-            raise ValueError(f"matte {matte!r} is not a colour: give a name such as 'white', "
-                             "'#rrggbb' or three floats in [0, 1].") from None
-        return np.asarray(rgb, np.float32) / 255
-    try:
-        rgb = np.asarray(matte, np.float64)
-    except (TypeError, ValueError):
-        rgb = None
-    if rgb is None or rgb.shape != (3,) or not np.all((rgb >= 0) & (rgb <= 1)):
-        raise ValueError(f"matte must be a colour name, '#rrggbb' or three floats (r, g, b) in "
-                         f"[0, 1], got {matte!r}.")
-    return rgb.astype(np.float32)
-
-
 def _check_quality(quality) -> None:
     if quality is None:
         return
@@ -178,50 +138,6 @@ def _quality(kind: str, quality) -> int:
 
 
 # ---- pictures -------------------------------------------------------------------------
-
-
-def _bytes(values: np.ndarray) -> np.ndarray:
-    # Round to nearest: the values are in [0, 1], so the +0.5 never passes 255.5.
-    return (values * 255 + 0.5).astype(np.uint8)
-
-
-def _to_bytes(picture: np.ndarray, matte_rgb: np.ndarray | None) -> np.ndarray:
-    if picture.dtype != np.uint8:
-        picture = _bytes(picture)
-    if matte_rgb is None or picture.shape[-1] == 3:
-        return picture
-    # Composited from the rounded bytes, so that float pictures and their to_uint8 give
-    # the same files, at the cost of at most one level.
-    colour = picture[..., :3].astype(np.float32)
-    alpha = picture[..., 3:].astype(np.float32) * np.float32(1 / 255)
-    return (colour * alpha + (255 * matte_rgb) * (1 - alpha) + 0.5).astype(np.uint8)
-
-
-def to_uint8(pictures: Any, *, matte: Any = None) -> np.ndarray:
-    """Pictures as `uint8`, optionally composited onto an opaque colour.
-
-    Args:
-        pictures: one picture `(rows, cols, 3 or 4)` or a stack `(n, rows, cols, 3 or 4)`,
-            float in `[0, 1]` (straight alpha) or `uint8` (returned as is without `matte`).
-        matte: `None` to keep the channels; or a colour (a name such as `"white"`,
-            `"#rrggbb"` or three floats in `[0, 1]`) to lay RGBA pictures over, which
-            gives RGB: `colour * alpha + matte * (1 - alpha)`.
-
-    Returns:
-        `uint8` array of the same shape (the last axis 3 where an RGBA picture was
-        composited), each float `v` rounded to the nearest of `v * 255`.
-
-    Raises:
-        ValueError: a shape other than the above, NaN, or floats outside `[0, 1]`.
-        TypeError: a dtype other than float or `uint8`.
-    """
-    array = np.asarray(pictures)
-    if array.ndim not in (3, 4):
-        raise ValueError(f"pictures must have shape (rows, cols, 3 or 4) or (n, rows, cols, 3 "
-                         f"or 4), got shape {array.shape}.")
-    _check_channels(array.shape, "pictures", "(..., rows, cols, 3 or 4)")
-    _check_values(array, "pictures")
-    return _to_bytes(array, None if matte is None else _matte_rgb(matte))
 
 
 def write_image(path: Any, picture: Any, *, matte: Any = "white", quality: Any = None) -> None:
@@ -249,8 +165,8 @@ def write_image(path: Any, picture: Any, *, matte: Any = "white", quality: Any =
     path, kind = _format_of(path, _IMAGE_FORMATS, "write_image")
     array = _as_picture(picture)
     _check_quality(quality)
-    matte_rgb = _matte_rgb(matte) if kind == "JPEG" else None
-    image = Image.fromarray(np.ascontiguousarray(_to_bytes(array, matte_rgb)))
+    matte_rgb = as_matte_rgb(matte) if kind == "JPEG" else None
+    image = Image.fromarray(np.ascontiguousarray(to_bytes(array, matte_rgb)))
     options = {} if kind == "PNG" else {"quality": _quality(kind, quality)}
     image.save(path, format=kind, **options)
 
@@ -326,15 +242,9 @@ def write_animation(
     """
     path, kind = _format_of(path, _ANIMATION_FORMATS, "write_animation")
     items = _as_frames(frames)
-    if isinstance(fps, bool) or not isinstance(fps, Real) or not 0 < fps < math.inf:
-        raise ValueError(f"fps must be a positive number of frames per second, got {fps!r}.")
-    if isinstance(loop, bool) or not isinstance(loop, Integral) or loop < 0:
-        raise ValueError(f"loop must be how many times to play, an integer >= 0 (0 for ever), "
-                         f"got {loop!r}.")
-    if progress is not None and not isinstance(progress, bool):
-        raise TypeError(f"progress must be None, True or False, got {progress!r}.")
+    _check_timing(fps, loop, progress)
     _check_quality(quality)
-    matte_rgb = _matte_rgb(matte)
+    matte_rgb = as_matte_rgb(matte)
     if kind == "MP4":
         _write_mp4(path, items, float(fps), quality, matte_rgb, progress)
     elif kind == "GIF":
@@ -343,13 +253,24 @@ def write_animation(
         _write_pillow(path, kind, items, float(fps), int(loop), quality, progress)
 
 
+def _check_timing(fps, loop, progress) -> None:
+    """`write_animation`'s `fps`, `loop` and `progress`, or an error naming the one."""
+    if isinstance(fps, bool) or not isinstance(fps, Real) or not 0 < fps < math.inf:
+        raise ValueError(f"fps must be a positive number of frames per second, got {fps!r}.")
+    if isinstance(loop, bool) or not isinstance(loop, Integral) or loop < 0:
+        raise ValueError(f"loop must be how many times to play, an integer >= 0 (0 for ever), "
+                         f"got {loop!r}.")
+    if progress is not None and not isinstance(progress, bool):
+        raise TypeError(f"progress must be None, True or False, got {progress!r}.")
+
+
 def _write_pillow(path, kind, items, fps, loop, quality, progress) -> None:
     from PIL import Image
 
     with progress_bar(len(items), progress, path.name) as bar:
         images = []
         for frame in items:
-            images.append(Image.fromarray(np.ascontiguousarray(_to_bytes(frame, None))))
+            images.append(Image.fromarray(np.ascontiguousarray(to_bytes(frame, None))))
             bar.update()
         bar.set_postfix_str("encoding")
         if kind == "PNG":
@@ -373,11 +294,11 @@ def _write_gif(path, items, fps, loop, matte_rgb, progress) -> None:
     from PIL import Image
 
     has_alpha = items[0].shape[-1] == 4
-    matte_bytes = _bytes(matte_rgb)
+    matte_bytes = byte_values(matte_rgb)
 
     def opaque_colours(frame):
-        frame = _to_bytes(frame, None)
-        rgb = _to_bytes(frame, matte_rgb)
+        frame = to_bytes(frame, None)
+        rgb = to_bytes(frame, matte_rgb)
         return (rgb, frame[..., 3] < 128) if has_alpha else (rgb, None)  # alpha < 1/2
 
     picks = np.unique(np.linspace(0, len(items) - 1, _PALETTE_FRAMES).round().astype(int))
@@ -439,12 +360,12 @@ def _write_mp4(path, items, fps, quality, matte_rgb, progress) -> None:
 
     rows, cols = items[0].shape[:2]
     even_rows, even_cols = rows + rows % 2, cols + cols % 2
-    matte_bytes = _bytes(matte_rgb)
+    matte_bytes = byte_values(matte_rgb)
     crf = _DEFAULT_CRF if quality is None else round(51 * (1 - quality / 100))
 
     def rgb_frames(bar):
         for frame in items:
-            rgb = _to_bytes(frame, matte_rgb)
+            rgb = to_bytes(frame, matte_rgb)
             if (even_rows, even_cols) != (rows, cols):
                 padded = np.empty((even_rows, even_cols, 3), np.uint8)
                 padded[...] = matte_bytes

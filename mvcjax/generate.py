@@ -22,9 +22,18 @@ import zlib
 from collections.abc import Callable
 from typing import Any
 
+import jax
 import numpy as np
 
+from ._animation import deform_frames
 from ._checks import as_devices, whole_number
+from ._image import cut_out, load_image
+from ._metrics import flipped_triangles
+from ._progress import progress_bar
+from ._render import Renderer, check_size, fill_texture, fit_window, to_pixels
+from ._rig import Rig
+from ._shape import Shape
+from .datasets import glyph, glyph_handles
 
 FORMAT = "mvcjax-posed-dataset"
 VERSION = 1
@@ -152,8 +161,6 @@ def glyph_sprites(letters: str, font: Any = None, size: int = 96) -> dict:
     down, so that its outline's pixel steps are a quarter of a unit: smooth edges in
     pictures drawn about one pixel per unit.
     """
-    from .datasets import glyph
-
     if not isinstance(letters, str) or not letters.strip():
         raise ValueError(f"letters must be a string of visible characters, got {letters!r}.")
     size = whole_number(size, "size", what=" of pixels per em")
@@ -226,20 +233,69 @@ def write_dataset(
     Returns:
         A `DatasetReport` of this process's work.
     """
-    import jax
-
-    from ._progress import progress_bar
-    from ._render import _fill, _size
-
     started = time.perf_counter()
+    job = _checked_job(poses, size, limits, handles, seed, batch, fill, rig_options, devices,
+                       process_index, process_count)
+    sources, skipped = _sources(sprites)
+    out = _open_folder(out, job.settings())
+    mine = list(sources)[job.process_index::job.process_count]
+    report = DatasetReport(sprites=mine)
+    report.skipped.update(skipped)
+    with progress_bar(len(mine) * job.poses, progress, "posed pictures") as bar:
+        for name in mine:
+            _write_sprite(out, name, sources[name], job, report, bar)
+    report.seconds = time.perf_counter() - started
+    _write_json(out / f"report-{job.process_index}.json", dataclasses.asdict(report)
+                | {"images_per_second": report.images_per_second})
+    if mine and len(report.skipped) >= len(mine) and not report.written + report.resumed:
+        reasons = "; ".join(f"{k}: {v}" for k, v in list(report.skipped.items())[:5])
+        raise ValueError(f"No sprite could be posed ({reasons}).")
+    return report
+
+
+@dataclasses.dataclass(frozen=True)
+class _Job:
+    """The checked settings of one `write_dataset` call."""
+
+    poses: int
+    batch: int
+    rows: int
+    cols: int
+    limits: PoseLimits
+    seed: int
+    fill: Any
+    handles: Callable | None
+    rig_options: dict
+    process_index: int
+    process_count: int
+    devices: Any
+
+    def settings(self) -> dict:
+        """What `dataset.json` records: a dataset is resumed only with the same."""
+        return {
+            "format": FORMAT, "version": VERSION, "size": [self.rows, self.cols],
+            "poses": self.poses, "batch": self.batch, "seed": self.seed,
+            "limits": dataclasses.asdict(self.limits), "fill": self.fill,
+            "handles": _name_of(self.handles), "rig_options": repr(self.rig_options),
+        }
+
+    def unit_size(self, unit: int) -> int:
+        """Poses in unit `unit` (the last may hold fewer than `batch`)."""
+        return _unit_size(unit, self.poses, self.batch)
+
+
+def _checked_job(poses, size, limits, handles, seed, batch, fill, rig_options, devices,
+                 process_index, process_count) -> _Job:
+    """`write_dataset`'s arguments checked, each refused naming it, and their defaults
+    filled in."""
     poses = whole_number(poses, "poses", what=" of poses per sprite")
     batch = whole_number(batch, "batch", what=" of poses per unit")
-    rows, cols = _size((size, size) if isinstance(size, (int, np.integer)) else size)
+    rows, cols = check_size((size, size) if isinstance(size, (int, np.integer)) else size)
     if not isinstance(limits, PoseLimits):
         raise TypeError(f"limits must be an mvcjax.generate.PoseLimits, got "
                         f"{type(limits).__name__}.")
     seed = whole_number(seed, "seed", minimum=0)
-    _fill(fill, np.zeros((1, 2)))  # refused here, naming it, rather than per sprite
+    fill_texture(fill, np.zeros((1, 2)))  # refused here, naming it, rather than per sprite
     fill = fill if isinstance(fill, str) else [float(c) for c in fill]  # as JSON has it
     if handles is not None and not callable(handles):
         raise TypeError(f"handles must be a function of the Shape giving its handles, got "
@@ -253,62 +309,49 @@ def write_dataset(
         raise ValueError(f"process_index ({process_index}) must be below process_count "
                          f"({process_count}).")
     devices = as_devices(jax.local_devices() if devices is None else devices)
+    return _Job(poses, batch, rows, cols, limits, seed, fill, handles, rig_options,
+                process_index, process_count, devices)
 
-    sources, skipped = _sources(sprites)
-    settings = {
-        "format": FORMAT, "version": VERSION, "size": [rows, cols], "poses": poses,
-        "batch": batch, "seed": seed, "limits": dataclasses.asdict(limits),
-        "fill": fill, "handles": _name_of(handles), "rig_options": repr(rig_options),
-    }
-    out = _open_folder(out, settings)
-    mine = list(sources)[process_index::process_count]
-    report = DatasetReport(sprites=mine)
-    report.skipped.update(skipped)
-    units = -(-poses // batch)
-    with progress_bar(len(mine) * poses, progress, "posed pictures") as bar:
-        for name in mine:
-            todo = [u for u in range(units) if not _unit_path(out, name, u).exists()]
-            report.resumed += sum(_unit_size(u, poses, batch) for u in range(units)
-                                  if u not in todo)
-            bar.update(poses - sum(_unit_size(u, poses, batch) for u in todo))
-            if not todo:
-                continue
-            clock = time.perf_counter()
-            try:
-                sprite = _Sprite.build(name, sources[name], handles, rig_options, limits,
-                                       (rows, cols), fill)
-            except (OSError, ValueError, TypeError) as error:
-                _skip(report, name, f"{type(error).__name__}: {error}")
-                bar.update(sum(_unit_size(u, poses, batch) for u in todo))
-                continue
-            clock = _lap(report, "rig", clock)
-            for unit in todo:
-                rng = np.random.default_rng([seed, zlib.crc32(name.encode()), unit])
-                drawn = sprite.pose(rng, batch, devices)
-                if drawn is None:
-                    _skip(report, name, f"fewer than {batch} of {MAX_ROUNDS * batch} random "
-                          "poses were free of folds and inside the picture; lower "
-                          "PoseLimits(offset=, turn=, bone_turn=), or allow folds=True")
-                    break
-                targets, vertices, rejected = drawn
-                keep = _unit_size(unit, poses, batch)
-                clock = _lap(report, "pose", clock)
-                pictures = sprite.renderer.frames(vertices[:keep], chunk=min(batch, 16),
-                                                  progress=False, devices=devices)
-                clock = _lap(report, "draw", clock)
-                _write_unit(_unit_path(out, name, unit), sprite, targets[:keep], pictures,
-                            unit, process_index)
-                clock = _lap(report, "write", clock)
-                report.written += keep
-                report.rejected += rejected
-                bar.update(keep)
-    report.seconds = time.perf_counter() - started
-    _write_json(out / f"report-{process_index}.json", dataclasses.asdict(report)
-                | {"images_per_second": report.images_per_second})
-    if mine and len(report.skipped) >= len(mine) and not report.written + report.resumed:
-        reasons = "; ".join(f"{k}: {v}" for k, v in list(report.skipped.items())[:5])
-        raise ValueError(f"No sprite could be posed ({reasons}).")
-    return report
+
+def _write_sprite(out: pathlib.Path, name: str, source, job: _Job, report: DatasetReport,
+                  bar) -> None:
+    """Rig sprite `name`, then pose, draw and write its units not yet written, counting
+    them in `report` and on `bar`; a sprite that cannot be rigged or posed is skipped."""
+    units = -(-job.poses // job.batch)
+    todo = [u for u in range(units) if not _unit_path(out, name, u).exists()]
+    report.resumed += sum(job.unit_size(u) for u in range(units) if u not in todo)
+    bar.update(job.poses - sum(job.unit_size(u) for u in todo))
+    if not todo:
+        return
+    clock = time.perf_counter()
+    try:
+        sprite = _Sprite.build(name, source, job.handles, job.rig_options, job.limits,
+                               (job.rows, job.cols), job.fill)
+    except (OSError, ValueError, TypeError) as error:
+        _skip(report, name, f"{type(error).__name__}: {error}")
+        bar.update(sum(job.unit_size(u) for u in todo))
+        return
+    clock = _lap(report, "rig", clock)
+    for unit in todo:
+        rng = np.random.default_rng([job.seed, zlib.crc32(name.encode()), unit])
+        drawn = sprite.pose(rng, job.batch, job.devices)
+        if drawn is None:
+            _skip(report, name, f"fewer than {job.batch} of {MAX_ROUNDS * job.batch} random "
+                  "poses were free of folds and inside the picture; lower "
+                  "PoseLimits(offset=, turn=, bone_turn=), or allow folds=True")
+            break
+        targets, vertices, rejected = drawn
+        keep = job.unit_size(unit)
+        clock = _lap(report, "pose", clock)
+        pictures = sprite.renderer.frames(vertices[:keep], chunk=min(job.batch, 16),
+                                          progress=False, devices=job.devices)
+        clock = _lap(report, "draw", clock)
+        _write_unit(_unit_path(out, name, unit), sprite, targets[:keep], pictures,
+                    unit, job.process_index)
+        clock = _lap(report, "write", clock)
+        report.written += keep
+        report.rejected += rejected
+        bar.update(keep)
 
 
 def read_dataset(out: Any) -> dict:
@@ -346,20 +389,16 @@ class _Sprite:
 
     @classmethod
     def build(cls, name, source, handles, rig_options, limits, shape, fill) -> _Sprite:
-        import mvcjax
-
-        from .datasets import glyph_handles
-
         picture = None
-        if isinstance(source, mvcjax.Shape):
+        if isinstance(source, Shape):
             outline = source
         else:
-            picture = mvcjax.load_image(source)
+            picture = load_image(source)
             if picture[..., 3].min() >= 1.0:  # opaque: key out the corner's colour
-                picture = mvcjax.cut_out(picture)
-            outline = mvcjax.Shape.from_image(picture[..., 3] > 0.5, component=0)
+                picture = cut_out(picture)
+            outline = Shape.from_image(picture[..., 3] > 0.5, component=0)
         pins = (handles or (lambda s: np.concatenate(glyph_handles(s))))(outline)
-        rig = mvcjax.Rig.build(outline, pins, **rig_options)
+        rig = Rig.build(outline, pins, **rig_options)
         rest = np.asarray(rig.handle_positions, np.float64)
         vertices = np.asarray(rig.shape_mesh.vertices, np.float64)
         lo, hi = vertices.min(axis=0), vertices.max(axis=0)
@@ -369,27 +408,23 @@ class _Sprite:
         reach = (np.linalg.norm(vertices - centre, axis=1).max() if limits.turn > 0
                  else 0.5 * extent)
         reach += limits.offset * extent
-        window = mvcjax.fit_window(np.array([centre - reach, centre + reach]), shape,
-                                   margin=0.02)
-        renderer = mvcjax.Renderer.build(rig, picture, size=shape, window=window,
-                                         fill=fill)
+        window = fit_window(np.array([centre - reach, centre + reach]), shape, margin=0.02)
+        renderer = Renderer.build(rig, picture, size=shape, window=window, fill=fill)
         return cls(rig, renderer, rest, np.asarray(rig.handles.bones, np.int64).reshape(-1, 2),
                    centre, extent, limits)
 
     def pose(self, rng, count: int, devices) -> tuple | None:
         """`count` random poses free of folds (unless allowed) and inside the window:
         their targets, deformed vertices and the number rejected; None if too few."""
-        import mvcjax
-
         mesh = self.rig.shape_mesh
         kept_targets, kept_vertices, rejected = [], [], 0
         for _ in range(MAX_ROUNDS):
             targets = self.limits.draw(rng, self.rest, self.bones, self.centre, self.size,
                                        count)
-            vertices = np.asarray(mvcjax.deform_frames(self.rig, targets, devices=devices))
+            vertices = np.asarray(deform_frames(self.rig, targets, devices=devices))
             ok = np.isfinite(vertices).all(axis=(1, 2)) & ~self.renderer.leaves_window(vertices)
             if not self.limits.folds:
-                ok &= mvcjax.flipped_triangles(mesh.vertices, vertices, mesh.faces) == 0
+                ok &= flipped_triangles(mesh.vertices, vertices, mesh.faces) == 0
             rejected += int((~ok).sum())
             kept_targets.append(targets[ok])
             kept_vertices.append(vertices[ok])
@@ -401,8 +436,6 @@ class _Sprite:
 
 def _sources(sprites) -> tuple[dict, dict]:
     """The sprites by name (sorted), and the files skipped with why."""
-    import mvcjax
-
     skipped = {}
     if isinstance(sprites, (str, os.PathLike)):
         folder = pathlib.Path(sprites)
@@ -436,7 +469,7 @@ def _sources(sprites) -> tuple[dict, dict]:
     if not sources:
         raise ValueError(f"sprites holds no picture (skipped: {skipped or 'nothing'}).")
     for name, source in sources.items():
-        if not isinstance(source, mvcjax.Shape) and isinstance(source, (str, os.PathLike)):
+        if not isinstance(source, Shape) and isinstance(source, (str, os.PathLike)):
             try:
                 from PIL import Image
 
@@ -454,13 +487,17 @@ def _lap(report: DatasetReport, stage: str, since: float) -> float:
     return now
 
 
-def _warn(name: str, reason: str) -> None:
-    warnings.warn(f"write_dataset skips sprite {name}: {reason}.", stacklevel=4)
+def _warn(name: str, reason: str, stacklevel: int = 4) -> None:
+    """Warn that sprite `name` is left out, pointing at the call of `write_dataset`:
+    `stacklevel` counts the frames from here to its caller (4 from `_sources`)."""
+    warnings.warn(f"write_dataset skips sprite {name}: {reason}.", stacklevel=stacklevel)
 
 
 def _skip(report: DatasetReport, name: str, reason: str) -> None:
+    """Record sprite `name` as skipped, and warn the caller of `write_dataset` (which
+    calls `_write_sprite`, which calls this)."""
     report.skipped[name] = reason
-    _warn(name, reason)
+    _warn(name, reason, stacklevel=5)
 
 
 def _open_folder(out, settings: dict) -> pathlib.Path:
@@ -506,8 +543,6 @@ def _unit_size(unit: int, poses: int, batch: int) -> int:
 def _write_unit(path: pathlib.Path, sprite: _Sprite, targets, pictures, unit: int,
                 process: int) -> None:
     """One unit's arrays, written under a temporary name and renamed when complete."""
-    from ._render import _to_pixels
-
     rows, cols = sprite.renderer.shape
     window = np.asarray(sprite.renderer.window, np.float64)
     path.parent.mkdir(exist_ok=True)
@@ -517,7 +552,7 @@ def _write_unit(path: pathlib.Path, sprite: _Sprite, targets, pictures, unit: in
         images=pictures,
         masks=pictures[..., 3] >= 128,
         targets=targets.astype(np.float32),
-        keypoints=np.asarray(_to_pixels(targets, window, rows, cols), np.float32),
+        keypoints=np.asarray(to_pixels(targets, window, rows, cols), np.float32),
         rest=sprite.rest.astype(np.float32),
         window=window,
         unit=np.int64(unit),

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._topology import boundary_loops
+
 
 def _axes(ax):
     if ax is None:
@@ -27,8 +29,6 @@ def plot_mesh(vertices, faces, ax=None, *, color="0.55", linewidth=0.3, **kwargs
 def plot_outline(rig, ax=None, vertices=None, **kwargs):
     """The outline (every boundary loop) of the shape mesh, at rest or at `vertices`;
     keywords go to `Axes.plot`."""
-    from ._topology import boundary_loops
-
     ax = _axes(ax)
     v = np.asarray(rig.shape_mesh.vertices if vertices is None else vertices)
     kwargs = {"color": "0.3", "linewidth": 0.8, **kwargs}

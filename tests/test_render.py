@@ -254,12 +254,12 @@ def test_shading_only_the_drawn_pixels_equals_shading_every_pixel(renderer256, r
     # last run is padded.
     from mvcjax._render import (
         _face_table,
-        _key_layout,
         _shade,
         _shade_steps,
         _shade_where,
         _straight,
-        _to_pixels,
+        key_layout,
+        to_pixels,
     )
 
     renderer = renderer256 if size == (256, 256) else mvcjax.Renderer.build(rig, picture,
@@ -268,9 +268,9 @@ def test_shading_only_the_drawn_pixels_equals_shading_every_pixel(renderer256, r
     if size == (256, 256):
         assert _shade_steps(rows * cols) == (0, 1, 4, 8)
     faces = renderer.faces
-    tri = _to_pixels(rig.shape_mesh.vertices, renderer.window, rows, cols)[faces]
+    tri = to_pixels(rig.shape_mesh.vertices, renderer.window, rows, cols)[faces]
     table = _face_table(tri, renderer.texture_points[faces], renderer.boundary)
-    face_bits, _ = _key_layout(faces.shape[0])
+    face_bits, _ = key_layout(faces.shape[0])
     rng = np.random.default_rng(0)
     layer = np.where(rng.random(rows * cols) < share,
                      rng.integers(0, faces.shape[0], rows * cols), -1).astype(np.int32)

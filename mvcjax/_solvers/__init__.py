@@ -1,4 +1,8 @@
-from ._base import AbstractSolver as AbstractSolver, SolveInfo as SolveInfo
+from ._base import (
+    AbstractSolver as AbstractSolver,
+    SolveInfo as SolveInfo,
+    check_solver as check_solver,
+)
 from ._fixed_g import FixedG as FixedG
 from ._fold_free import FoldFree as FoldFree
 from ._jaxopt import (

@@ -190,3 +190,19 @@ def check_steps(solver: AbstractSolver, steps: Any) -> int:
     if steps < 1:
         raise ValueError(f"{where}: needs at least 1 step.")
     return int(steps)
+
+
+def check_solver(solver, name: str = "solver"):
+    """`solver` itself if it is an mvcjax solver object; otherwise a TypeError with the
+    spelling that works (a solver's name as a string is a common slip)."""
+    if isinstance(solver, AbstractSolver):
+        return solver
+    if isinstance(solver, str):
+        fix = f"mvcjax.{solver}()" if solver.isidentifier() else "mvcjax.GaussNewton()"
+        raise TypeError(f"{name} must be an mvcjax solver object, not the string {solver!r}; "
+                        f"write {fix}.")
+    if isinstance(solver, type) and issubclass(solver, AbstractSolver):
+        raise TypeError(f"{name} must be an mvcjax solver object, got the class "
+                        f"{solver.__name__}; write mvcjax.{solver.__name__}().")
+    raise TypeError(f"{name} must be an mvcjax solver such as mvcjax.FixedG() or "
+                    f"mvcjax.GaussNewton(), got {type(solver).__name__}.")

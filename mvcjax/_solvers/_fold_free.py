@@ -3,6 +3,8 @@ minimised by Gauss-Newton steps that never cross a flat triangle."""
 
 from __future__ import annotations
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -47,6 +49,92 @@ _SAFE_SHARE = 0.9
 _SHAPE_ROWS = 32
 
 _UNCONSTRAINED = GaussNewton()
+
+
+def _model_matvec(model, barriers, models, count, p, normal_p):
+    """The Gauss-Newton matrix of the energy and the barriers times `p`, given
+    `normal_p = N p`: the energy's `N p` less its rotation terms, plus each barrier's
+    `J^T J p` over its most squeezed triangles (`models`)."""
+    return (normal_p - model.correction(p)
+            + sum(b.vjp(m, b.jvp(m, p), count) for b, m in zip(barriers, models)))
+
+
+def _model_at(problem, barriers, normal, inverse, y, points):
+    """The Gauss-Newton model of the energy and the barriers at `y` (the barriers'
+    `points` carried there): `(model, gradient, matvec)`, the energy's
+    `GaussNewtonMatrix`, the whole gradient and the whole matrix's product."""
+    count = y.shape[1]
+    model = GaussNewtonMatrix.at(problem, normal, inverse, y)
+    parts = [b.linearise(count, p) for b, p in zip(barriers, points)]
+    gradient = model.gradient + sum(g for g, _ in parts)
+    matvec = functools.partial(_model_matvec, model, barriers, tuple(m for _, m in parts),
+                               count)
+    return model, gradient, matvec
+
+
+def _deflated_direction(linear_solver, inverse, model, gradient, matvec, y, previous):
+    """The Gauss-Newton step (to be subtracted) by conjugate gradients, deflated by the
+    step `previous` that led to `y` with the curvature observed along it
+    (`GaussNewtonMatrix.solve` says why); the gradient if they broke down."""
+    last_y, last_normal, last_gradient = previous
+    d = y - last_y
+    normal_d = model.normal_point - last_normal
+    observed = _dot(d, gradient - last_gradient)
+    x, _ = conjugate_gradient(matvec, gradient, inverse.mv, linear_solver.rtol,
+                              linear_solver.steps, (d, matvec(d, normal_d), normal_d, observed))
+    # Conjugate gradients on a positive semidefinite matrix give a descent
+    # direction; the gradient itself is the fallback if they broke down.
+    return jnp.where(_dot(x, gradient) > 0, x, gradient)
+
+
+def _trial_value(problem, barriers, lines, y, direction, t):
+    """The objective (residuals and barriers) at `y + t direction`, the barriers from
+    their areas along the step (`lines`)."""
+    r = problem.residuals(y + t * direction)
+    return jnp.sum(r * r) + sum(b.value_along(line, t) for b, line in zip(barriers, lines))
+
+
+def _armijo_search(problem, barriers, y, points, value, gradient, direction):
+    """Armijo backtracking along `direction` from short of the first flat triangle:
+    `(accepted, step, value there, the points' moves, direction)`."""
+    slope = 2 * _dot(gradient, direction)
+    # The meshes' points move linearly with the control coordinates: carried
+    # once per step, and each triangle's area along the step is a quadratic.
+    moves = tuple(b.points(direction) for b in barriers)
+    lines = [b.line(p, q) for b, p, q in zip(barriers, points, moves)]
+    reach = jnp.min(jnp.stack([first_flat(*line) for line in lines]))
+    t0 = jnp.minimum(1.0, _SAFE_SHARE * reach).astype(y.dtype)
+    trial_value = functools.partial(_trial_value, problem, barriers, lines, y, direction)
+
+    def short(state):
+        t, trial, i = state
+        return (trial > value + _ARMIJO * t * slope) & (i < _HALVINGS)
+
+    def halve(state):
+        t, _, i = state
+        return t / 2, trial_value(t / 2), i + 1
+
+    t, trial, _ = jax.lax.while_loop(short, halve, (t0, trial_value(t0), 0))
+    accept = trial <= value + _ARMIJO * t * slope
+    return accept, jnp.where(accept, t, 0), trial, moves, direction
+
+
+def _step_converged(accept, y, new_y, value, new_value, promised, rtol, atol):
+    """Whether a step from `y` to `new_y` converged: an accepted step that moved no
+    coordinate more than `atol + rtol |y|` and lowered the objective by less than `rtol`
+    of it, or no decrease found where the model `promised` next to nothing."""
+    moved = jnp.max(jnp.abs(new_y - y) / (atol + rtol * jnp.abs(y)))
+    # No decrease along either descent direction: at the minimum to rounding if
+    # the Gauss-Newton model promised next to nothing there, else stuck (and
+    # then not converged).
+    return ((accept & (moved < 1) & (value - new_value <= rtol * value))
+            | (~accept & (promised <= _STALL * rtol * value)))
+
+
+def _running(max_steps, carry):
+    """Whether the iteration goes on: steps left, and not stopped."""
+    k, *_, (done, _) = carry
+    return (k < max_steps) & ~done
 
 
 class _Barrier(eqx.Module):
@@ -283,91 +371,35 @@ class FoldFree(AbstractSolver):
 
         return objective
 
+    def _step(self, problem, barriers, normal, inverse, rtol, atol, carry):
+        """One step of the iteration: the Gauss-Newton direction of the energy and the
+        barriers, searched along (or the fixed-G direction where it finds no decrease),
+        and whether the iteration has stopped and converged."""
+        k, y, points, value, previous, _ = carry
+        model, gradient, matvec = _model_at(problem, barriers, normal, inverse, y, points)
+        x = _deflated_direction(self.linear_solver, inverse, model, gradient, matvec, y,
+                                previous)
+        search = functools.partial(_armijo_search, problem, barriers, y, points, value,
+                                   gradient)
+        # Where the Gauss-Newton direction finds no decrease (its model can be poor
+        # next to a barrier), the fixed-G direction `-N^{-1} g` still descends.
+        found = search(-x)
+        accept, step_size, trial, moves, direction = jax.lax.cond(
+            found[0], lambda _: found, lambda _: search(-inverse.mv(gradient)), None)
+        new_y = y + step_size * direction
+        new_points = tuple(p + step_size * q for p, q in zip(points, moves))
+        new_value = jnp.where(accept, trial, value)
+        converged = _step_converged(accept, y, new_y, value, new_value, 2 * _dot(gradient, x),
+                                    rtol, atol)
+        return (k + 1, new_y, new_points, new_value,
+                (y, model.normal_point, gradient), (converged | ~accept, converged))
+
     def _minimise(self, problem, barriers, factor, start, done):
         normal, inverse = factor.normal_operator(), factor.normal_inverse_operator()
         dtype = start.dtype
         rtol = default_tol(dtype) if self.rtol is None else self.rtol
         atol = default_tol(dtype) if self.atol is None else self.atol
-        count = start.shape[1]
-
-        def model_at(y, points):
-            model = GaussNewtonMatrix.at(problem, normal, inverse, y)
-            parts = [b.linearise(count, p) for b, p in zip(barriers, points)]
-            gradient = model.gradient + sum(g for g, _ in parts)
-
-            def matvec(p, normal_p):
-                return (normal_p - model.correction(p)
-                        + sum(b.vjp(m, b.jvp(m, p), count)
-                              for b, (_, m) in zip(barriers, parts)))
-
-            return model, gradient, matvec
-
-        def step(carry):
-            k, y, points, value, previous, _ = carry
-            model, gradient, matvec = model_at(y, points)
-            # Deflated by the step that led here, with the curvature observed along it
-            # (`GaussNewtonMatrix.solve` says why).
-            last_y, last_normal, last_gradient = previous
-            d = y - last_y
-            normal_d = model.normal_point - last_normal
-            observed = _dot(d, gradient - last_gradient)
-            x, _ = conjugate_gradient(matvec, gradient, inverse.mv, self.linear_solver.rtol,
-                                      self.linear_solver.steps,
-                                      (d, matvec(d, normal_d), normal_d, observed))
-            # Conjugate gradients on a positive semidefinite matrix give a descent
-            # direction; the gradient itself is the fallback if they broke down.
-            x = jnp.where(_dot(x, gradient) > 0, x, gradient)
-
-            def search(direction):
-                """Armijo backtracking along `direction` from short of the first flat
-                triangle: `(accepted, step, value there, the points' moves)`."""
-                slope = 2 * _dot(gradient, direction)
-                # The meshes' points move linearly with the control coordinates: carried
-                # once per step, and each triangle's area along the step is a quadratic.
-                moves = tuple(b.points(direction) for b in barriers)
-                lines = [b.line(p, q) for b, p, q in zip(barriers, points, moves)]
-                reach = jnp.min(jnp.stack([first_flat(*line) for line in lines]))
-                t0 = jnp.minimum(1.0, _SAFE_SHARE * reach).astype(dtype)
-
-                def trial_value(t):
-                    r = problem.residuals(y + t * direction)
-                    return jnp.sum(r * r) + sum(b.value_along(line, t)
-                                                for b, line in zip(barriers, lines))
-
-                def short(state):
-                    t, trial, i = state
-                    return (trial > value + _ARMIJO * t * slope) & (i < _HALVINGS)
-
-                def halve(state):
-                    t, _, i = state
-                    return t / 2, trial_value(t / 2), i + 1
-
-                t, trial, _ = jax.lax.while_loop(short, halve, (t0, trial_value(t0), 0))
-                accept = trial <= value + _ARMIJO * t * slope
-                return accept, jnp.where(accept, t, 0), trial, moves, direction
-
-            # Where the Gauss-Newton direction finds no decrease (its model can be poor
-            # next to a barrier), the fixed-G direction `-N^{-1} g` still descends.
-            found = search(-x)
-            accept, step_size, trial, moves, direction = jax.lax.cond(
-                found[0], lambda _: found, lambda _: search(-inverse.mv(gradient)), None)
-            new_y = y + step_size * direction
-            new_points = tuple(p + step_size * q for p, q in zip(points, moves))
-            moved = jnp.max(jnp.abs(new_y - y) / (atol + rtol * jnp.abs(y)))
-            new_value = jnp.where(accept, trial, value)
-            # No decrease along either descent direction: at the minimum to rounding if
-            # the Gauss-Newton model promised next to nothing there, else stuck (and
-            # then not converged).
-            promised = 2 * _dot(gradient, x)
-            converged = ((accept & (moved < 1) & (value - new_value <= rtol * value))
-                         | (~accept & (promised <= _STALL * rtol * value)))
-            return (k + 1, new_y, new_points, new_value,
-                    (y, model.normal_point, gradient), (converged | ~accept, converged))
-
-        def running(carry):
-            k, *_, (done, _) = carry
-            return (k < self.max_steps) & ~done
-
+        step = functools.partial(self._step, problem, barriers, normal, inverse, rtol, atol)
         points = tuple(b.points(start) for b in barriers)
         r = problem.residuals(start)
         value = jnp.sum(r * r) + sum(b.value_along(b.line(p, jnp.zeros_like(p)), 0)
@@ -375,7 +407,8 @@ class FoldFree(AbstractSolver):
         # At the start there is no step yet: a zero step deflates nothing.
         previous = (start, normal.mv(start), jnp.zeros_like(start))
         carry = (jnp.zeros((), jnp.int32), start, points, value, previous, (done, done))
-        k, y, _, _, _, (_, converged) = jax.lax.while_loop(running, step, carry)
+        k, y, _, _, _, (_, converged) = jax.lax.while_loop(
+            functools.partial(_running, self.max_steps), step, carry)
         return y, k, converged
 
     def solve(self, energy, factor, targets, init):

@@ -35,6 +35,7 @@ implicit adjoint never forms a `2n x 2n` matrix either.
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import equinox as eqx
@@ -58,6 +59,85 @@ def _inverse_or_zero(x):
 
 
 UNROLL_STEPS = 16
+
+
+def _axpy(a, x, y):
+    """`a x + y`, leaf by leaf, for pytrees `x` and `y` of the same structure."""
+    return jax.tree.map(lambda xi, yi: a * xi + yi, x, y)
+
+
+def _undeflated(z, r):
+    """A direction and its `P^{-1}` unchanged: the undeflated iteration's projection."""
+    return z, r
+
+
+def _conjugate_to(w, aw, uw, inverse, z, r):
+    """`z - s w`, `A`-conjugate to `w`, and `P^{-1}` of it (`P^{-1} z` is `r`), given
+    `A w`, `P^{-1} w` and `1 / (w^T A w)`."""
+    s = _dot(aw, z) * inverse
+    return _axpy(-s, w, z), _axpy(-s, uw, r)
+
+
+def _deflated_start(b, deflation):
+    """The deflated iteration's start, `(x, residual, floor, conjugate_to_w)`: the best
+    multiple of `w`, its residual, the round-off floor of the stopping test, and the
+    projection that keeps the directions conjugate to `w` (`conjugate_gradient`)."""
+    w, aw, uw, *observed = deflation
+    waw = _dot(w, aw)
+    inverse = _inverse_or_zero(waw)
+    along = _dot(w, b)
+    start = along * inverse
+    residual = _axpy(-start, aw, b)
+    if observed:
+        # The raised operator has `w^T A w` at `c` and `A w` scaled to match: the same
+        # residual, from a shorter start.
+        curvature = jnp.maximum(waw, observed[0])
+        start = along * _inverse_or_zero(curvature)
+    x = jax.tree.map(lambda wi: start * wi, w)
+    # Where w already solves the system, what is left of the residual is rounding:
+    # stop below the start's decrease of the quadratic at round-off, rather than
+    # iterate on noise.
+    floor = jnp.finfo(inverse.dtype).eps * along**2 * inverse
+    return x, residual, floor, functools.partial(_conjugate_to, w, aw, uw, inverse)
+
+
+def _cg_continues(max_steps, stop, carry):
+    """Whether the iteration goes on: budget left and the preconditioned residual norm
+    (squared, `gamma`) still above `stop`."""
+    k, _, _, _, _, gamma = carry
+    return (k < max_steps) & (gamma > stop)
+
+
+def _cg_step(matvec, precondition, conjugate_to_w, carry):
+    """One preconditioned conjugate-gradient step; a direction of non-positive curvature
+    leaves `x` where it is and zeroes `gamma`, which ends the iteration."""
+    k, x, residual, direction, unpreconditioned, gamma = carry
+    q = matvec(direction, unpreconditioned)
+    curvature = _dot(direction, q)
+    ok = curvature > 0
+    alpha = jnp.where(ok, gamma / jnp.where(ok, curvature, 1), 0)
+    x = _axpy(alpha, direction, x)
+    residual = _axpy(-alpha, q, residual)
+    z = precondition(residual)
+    gamma_next = _dot(residual, z)
+    beta = gamma_next / jnp.where(gamma > 0, gamma, 1)
+    z, r = conjugate_to_w(z, residual)
+    direction = _axpy(beta, direction, z)
+    unpreconditioned = _axpy(beta, unpreconditioned, r)
+    return k + 1, x, residual, direction, unpreconditioned, jnp.where(ok, gamma_next, 0)
+
+
+def _iterate(cond, body, carry, max_steps: int):
+    """`body` applied while `cond` holds, at most `max_steps` times: unrolled with the
+    stopping test as a mask for budgets up to `UNROLL_STEPS`, else a while loop."""
+    if max_steps <= UNROLL_STEPS:
+        # A few iterations (a truncated Newton step): unrolled, with the stopping test
+        # as a mask, so that XLA fuses across iterations instead of running a loop.
+        for _ in range(max_steps):
+            keep = cond(carry)
+            carry = jax.tree.map(lambda a, b_, k=keep: jnp.where(k, a, b_), body(carry), carry)
+        return carry
+    return jax.lax.while_loop(cond, body, carry)
 
 
 def conjugate_gradient(matvec, b, precondition, rtol: float, max_steps: int, deflation=None):
@@ -92,74 +172,18 @@ def conjugate_gradient(matvec, b, precondition, rtol: float, max_steps: int, def
     Returns:
         `(x, steps)`.
     """
-    def axpy(a, x, y):
-        return jax.tree.map(lambda xi, yi: a * xi + yi, x, y)
-
     if deflation is None:
-        x = jax.tree.map(jnp.zeros_like, b)
-        residual = b
-        floor = 0.0
-
-        def conjugate_to_w(z, r):
-            return z, r
+        x, residual, floor, conjugate_to_w = jax.tree.map(jnp.zeros_like, b), b, 0.0, _undeflated
     else:
-        w, aw, uw, *observed = deflation
-        waw = _dot(w, aw)
-        inverse = _inverse_or_zero(waw)
-        along = _dot(w, b)
-        start = along * inverse
-        residual = axpy(-start, aw, b)
-        if observed:
-            # The raised operator has `w^T A w` at `c` and `A w` scaled to match: the same
-            # residual, from a shorter start.
-            curvature = jnp.maximum(waw, observed[0])
-            start = along * _inverse_or_zero(curvature)
-        x = jax.tree.map(lambda wi: start * wi, w)
-        # Where w already solves the system, what is left of the residual is rounding:
-        # stop below the start's decrease of the quadratic at round-off, rather than
-        # iterate on noise.
-        floor = jnp.finfo(inverse.dtype).eps * along**2 * inverse
-
-        def conjugate_to_w(z, r):
-            # `z - s w`, conjugate to `w`, and `P^{-1}` of it (`P^{-1} z` is `r`).
-            s = _dot(aw, z) * inverse
-            return axpy(-s, w, z), axpy(-s, uw, r)
-
+        x, residual, floor, conjugate_to_w = _deflated_start(b, deflation)
     z = precondition(residual)
     gamma0 = _dot(residual, z)
     stop = jnp.maximum((rtol**2) * gamma0, floor)
     direction, unpreconditioned = conjugate_to_w(z, residual)
-
-    def cond(carry):
-        k, _, _, _, _, gamma = carry
-        return (k < max_steps) & (gamma > stop)
-
-    def body(carry):
-        k, x, residual, direction, unpreconditioned, gamma = carry
-        q = matvec(direction, unpreconditioned)
-        curvature = _dot(direction, q)
-        ok = curvature > 0
-        alpha = jnp.where(ok, gamma / jnp.where(ok, curvature, 1), 0)
-        x = axpy(alpha, direction, x)
-        residual = axpy(-alpha, q, residual)
-        z = precondition(residual)
-        gamma_next = _dot(residual, z)
-        beta = gamma_next / jnp.where(gamma > 0, gamma, 1)
-        z, r = conjugate_to_w(z, residual)
-        direction = axpy(beta, direction, z)
-        unpreconditioned = axpy(beta, unpreconditioned, r)
-        return k + 1, x, residual, direction, unpreconditioned, jnp.where(ok, gamma_next, 0)
-
     carry = (jnp.zeros((), jnp.int32), x, residual, direction, unpreconditioned, gamma0)
-    if max_steps <= UNROLL_STEPS:
-        # A few iterations (a truncated Newton step): unrolled, with the stopping test
-        # as a mask, so that XLA fuses across iterations instead of running a loop.
-        for _ in range(max_steps):
-            keep = cond(carry)
-            carry = jax.tree.map(lambda a, b_, k=keep: jnp.where(k, a, b_), body(carry), carry)
-    else:
-        carry = jax.lax.while_loop(cond, body, carry)
-    steps, x, *_ = carry
+    steps, x, *_ = _iterate(functools.partial(_cg_continues, max_steps, stop),
+                            functools.partial(_cg_step, matvec, precondition, conjugate_to_w),
+                            carry, max_steps)
     return x, steps
 
 
