@@ -63,7 +63,7 @@ def run(sizes, repeats: int, dtype_name: str) -> list[dict]:
         }
         paper = rig.with_weights(mvcjax.Weights.paper())
         solvers = [("fixed_g15", mvcjax.FixedG(), paper),
-                   ("default", mvcjax._solvers.DEFAULT_SOLVER, rig),
+                   ("default", mvcjax.solvers.DEFAULT_SOLVER, rig),
                    ("gauss_newton", mvcjax.GaussNewton(), rig)]
         for name, solver, rig in solvers:
             solve = jax.jit(lambda t, s=solver, r=rig: r.solve(t, s))

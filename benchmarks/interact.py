@@ -66,7 +66,7 @@ def _pin_spots(rig, count: int):
     from every handle: where the clicks add pins."""
     import numpy as np
 
-    from mvcjax._topology import boundary_loops
+    from mvcjax.geometry._topology import boundary_loops
 
     vertices = np.asarray(rig.shape_mesh.vertices, np.float64)
     handles = np.asarray(rig.handle_positions, np.float64)
@@ -92,7 +92,7 @@ def _pins(sessions, spots) -> tuple[list[list[float]], list[list[float]]]:
 
 def _solver(name: str):
     import mvcjax
-    from mvcjax._solvers import DEFAULT_SOLVER
+    from mvcjax.solvers import DEFAULT_SOLVER
 
     return {"default": DEFAULT_SOLVER, "paper": mvcjax.FixedG(),
             "fold-free": mvcjax.FoldFree()}[name]

@@ -5,7 +5,7 @@ programs are compiled and for a new one; rigs built plain and with a `SizeLadder
 Stars of 5 to 11 points and random radii, meshed at a sixtieth of their diagonal (about
 1,000 to 1,800 shape vertices), each built and posed once (`rig.deform`), one after
 another, as a script that rigs every glyph of a font does. mvcjax keeps the programs of
-at most `mvcjax._programs.SIZES_KEPT` rig sizes (`_programs` says why and how); the
+at most `mvcjax.rig._programs.SIZES_KEPT` rig sizes (`_programs` says why and how); the
 maps and the resident memory are read from `/proc/self` every 10 rigs, over 1,000 rigs.
 Each way runs in a fresh process of its own, the same stars in the same order.
 
@@ -59,7 +59,7 @@ def measure(count: int, laddered: bool) -> tuple[list[dict], dict]:
     rows of memory as they go by, and a summary of the times."""
     import mvcjax
     from mvcjax import _programs
-    from mvcjax._ladder import padded_twin
+    from mvcjax.rig._ladder import padded_twin
 
     ladder = mvcjax.SizeLadder() if laddered else None
     rng = np.random.default_rng(0)

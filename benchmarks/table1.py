@@ -66,7 +66,7 @@ def _igl():
 def _edge_count(faces) -> int:
     import numpy as np
 
-    from mvcjax._topology import edges
+    from mvcjax.geometry._topology import edges
 
     return len(edges(np.asarray(faces)))
 

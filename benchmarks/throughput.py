@@ -227,7 +227,7 @@ def _floors(rig, batches):
         held[0] = write(held[0], t)
         return held[0]
 
-    from mvcjax._solvers import DEFAULT_SOLVER
+    from mvcjax.solvers import DEFAULT_SOLVER
 
     floors = {"result_fresh": (fresh, batches), "result_reused": (reused, batches)}
     inverse = getattr(rig.factor, "normal_inverse", None)

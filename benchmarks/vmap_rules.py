@@ -49,7 +49,7 @@ def _cases(rig, frames: int, picture_size: int) -> dict:
 
     import mvcjax
     from mvcjax import _render, _skinning, datasets
-    from mvcjax._batching import with_batching_rule
+    from mvcjax.core._batching import with_batching_rule
 
     rest = np.asarray(rig.handle_positions)
     scale = np.random.default_rng(0).uniform(0.2, 1.0, size=(frames, 1, 1))

@@ -12,9 +12,10 @@ import jax
 import numpy as np
 
 import mvcjax
-from mvcjax import datasets, export, generate, plot
-from mvcjax._solvers import DEFAULT_SOLVER
-from mvcjax.generate import PoseLimits
+
+from . import datasets, export, generate, plot
+from .generate import PoseLimits
+from .solvers import DEFAULT_SOLVER
 
 
 def _say(message: str) -> None:

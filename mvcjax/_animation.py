@@ -13,13 +13,11 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Float
 
-from ._character import Character
-from ._checks import as_array, as_devices, kind_of, whole_number
-from ._ladder import padded_twin
-from ._rig import Rig, solve_in_frame
-from ._skinning import skin_frames_into
-from ._solvers import DEFAULT_SOLVER, AbstractSolver, check_solver
-from ._xla import to_device
+from .character import Character
+from .core import as_array, as_devices, kind_of, to_device, whole_number
+from .geometry import skin_frames_into
+from .rig import Rig, padded_twin, solve_in_frame
+from .solvers import DEFAULT_SOLVER, AbstractSolver, check_solver
 
 
 def _pad_frames(targets, multiple: int):

@@ -25,11 +25,11 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
-from ._character import Character, CharacterRenderer
-from ._checks import kind_of, whole_number
-from ._render import Renderer, as_picture, check_drawn_mesh, in_window
-from ._rig import Rig
-from ._solvers import DEFAULT_SOLVER, AbstractSolver, check_solver
+from .character import Character, CharacterRenderer
+from .core import kind_of, whole_number
+from .render import Renderer, as_picture, check_drawn_mesh, in_window
+from .rig import Rig
+from .solvers import DEFAULT_SOLVER, AbstractSolver, check_solver
 
 _CHANNELS = ("rgba", "alpha")
 

@@ -32,15 +32,12 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._animation import deform_frames
-from ._character import Character, CharacterRenderer
-from ._coordinates import barycentric_coordinates, locate_points
-from ._folds import signed_areas
-from ._pins import pin_state, pinned_row, with_pin_state, with_rows
-from ._render import Renderer, check_drawn_mesh, check_window, fit_window, in_window
-from ._rig import Rig
-from ._solvers import DEFAULT_SOLVER, AbstractSolver, FoldFree, check_solver
-from ._topology import boundary_loops, edges
+from .character import Character, CharacterRenderer
 from .export import write_animation
+from .geometry import barycentric_coordinates, boundary_loops, edges, locate_points, signed_areas
+from .render import Renderer, check_drawn_mesh, check_window, fit_window, in_window
+from .rig import Rig, pin_state, pinned_row, with_pin_state, with_rows
+from .solvers import DEFAULT_SOLVER, AbstractSolver, FoldFree, check_solver
 
 _HANDLE_STYLE = {"marker": "o", "markersize": 9, "color": "tab:red", "markeredgecolor": "white",
                  "markeredgewidth": 1.2, "linestyle": "none"}

@@ -6,10 +6,17 @@ solvers kept for comparison.
 Posing, rendering, exporting and fitting need none of it: those live in `mvcjax`.
 """
 
-from ._control import AbstractControl as AbstractControl
-from ._coordinates import mean_value_coordinates as mean_value_coordinates
-from ._energy import (
+from .energy import (
+    AbstractFactor as AbstractFactor,
+    AbstractFactorMethod as AbstractFactorMethod,
+    DenseFactor as DenseFactor,
+    DenseG as DenseG,
     Energy as Energy,
+    FactorBySize as FactorBySize,
+    FactorSolver as FactorSolver,
+    SparseFactor as SparseFactor,
+    SparseLU as SparseLU,
+    Stencil as Stencil,
     Term as Term,
     as_rigid_as_possible as as_rigid_as_possible,
     handle_residual as handle_residual,
@@ -19,23 +26,20 @@ from ._energy import (
     residuals as residuals,
     total_energy as total_energy,
 )
-from ._factor import (
-    AbstractFactor as AbstractFactor,
-    AbstractFactorMethod as AbstractFactorMethod,
-    DenseFactor as DenseFactor,
-    DenseG as DenseG,
-    FactorBySize as FactorBySize,
-    FactorSolver as FactorSolver,
-    SparseFactor as SparseFactor,
-    SparseLU as SparseLU,
+from .geometry import (
+    AbstractSkinning as AbstractSkinning,
+    Skinning as Skinning,
+    mean_value_coordinates as mean_value_coordinates,
 )
-from ._handles import Handles as Handles
-from ._rig import ControlMesh as ControlMesh, ShapeMesh as ShapeMesh
-from ._skinning import AbstractSkinning as AbstractSkinning, Skinning as Skinning
-from ._solvers import (
+from .rig import (
+    AbstractControl as AbstractControl,
+    ControlMesh as ControlMesh,
+    Handles as Handles,
+    ShapeMesh as ShapeMesh,
+)
+from .solvers import (
     AbstractSolver as AbstractSolver,
     JaxoptGaussNewton as JaxoptGaussNewton,
     JaxoptLevenbergMarquardt as JaxoptLevenbergMarquardt,
+    StructuredCG as StructuredCG,
 )
-from ._solvers._normal_cg import StructuredCG as StructuredCG
-from ._stencils import Stencil as Stencil

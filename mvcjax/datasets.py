@@ -9,12 +9,9 @@ import numpy as np
 import shapely
 from shapely import affinity
 
-from ._control import PaperControl
-from ._handles import Bone, parse_handles
-from ._image import load_image
-from ._layers import Layer
-from ._rig import Rig
-from ._shape import Shape
+from .character import Layer
+from .geometry import Shape, load_image
+from .rig import Bone, PaperControl, Rig, parse_handles
 
 
 def horse(tolerance: float = 1.0) -> Shape:

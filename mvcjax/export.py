@@ -24,17 +24,16 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from ._checks import as_points, kind_of
-from ._pictures import (
+from .core import as_points, kind_of, progress_bar
+from .geometry import (
     as_matte_rgb,
+    boundary_loops,
     byte_values,
     check_channels,
     check_values,
     to_bytes,
     to_uint8,
 )
-from ._progress import progress_bar
-from ._topology import boundary_loops
 
 __all__ = [
     "outline_rings",

@@ -26,14 +26,11 @@ import jax
 import numpy as np
 
 from ._animation import deform_frames
-from ._checks import as_devices, whole_number
-from ._image import cut_out, load_image
-from ._metrics import flipped_triangles
-from ._progress import progress_bar
-from ._render import Renderer, check_size, fill_texture, fit_window, to_pixels
-from ._rig import Rig
-from ._shape import Shape
+from .core import as_devices, progress_bar, whole_number
 from .datasets import glyph, glyph_handles
+from .geometry import Shape, cut_out, flipped_triangles, load_image
+from .render import Renderer, check_size, fill_texture, fit_window, to_pixels
+from .rig import Rig
 
 FORMAT = "mvcjax-posed-dataset"
 VERSION = 1

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._topology import boundary_loops
+from .geometry import boundary_loops
 
 
 def _axes(ax):

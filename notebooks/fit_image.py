@@ -181,9 +181,9 @@ plot_fit(textured, found, target,
 # pose: every gradient comes from the boundary. The renderer antialiases the mesh's
 # boundary edges: a pixel whose centre lies at signed distance `d` (in pixels, positive
 # inside) from a boundary edge is covered `clip(0.5 + d, 0, 1)`, a linear ramp one pixel
-# wide (see `_render.py`'s module docstring). Coverage is a smooth function of the edge's
-# vertices there, so the pixels the outline crosses tell each vertex which way to go,
-# and `rig.deform` carries that back to the handles.
+# wide (see the module docstring of `mvcjax/render/_render.py`). Coverage is a smooth
+# function of the edge's vertices there, so the pixels the outline crosses tell each
+# vertex which way to go, and `rig.deform` carries that back to the handles.
 #
 # One pixel wide is also the catch. A pixel's coverage changes only while an edge
 # crosses it, so the sharp loss is a sum of ramps one pixel wide: it is kinked

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import mvcjax
-from mvcjax import _skinning
-from mvcjax._batching import with_batching_rule
+from mvcjax.core._batching import with_batching_rule
+from mvcjax.geometry import _skinning
 
 from conftest import directional_derivatives
 
@@ -113,7 +113,7 @@ def test_vmap_takes_the_batching_rules(horse_rig, monkeypatch):
 
     monkeypatch.setattr(mvcjax.FixedG, "_iterate_frames", count("solve", rule))
     monkeypatch.setattr(_skinning, "_skin_blocks", count("skin", blocks))
-    from mvcjax._solvers._fixed_g import FEWEST_FRAMES_STEPPED_TOGETHER as fewest
+    from mvcjax.solvers._fixed_g import FEWEST_FRAMES_STEPPED_TOGETHER as fewest
 
     # A few frames go through JAX's batching of the single frame's loop, more through
     # the rule.

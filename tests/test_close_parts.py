@@ -16,7 +16,8 @@ import pytest
 import shapely
 
 import mvcjax
-from mvcjax import _meshing, datasets
+from mvcjax import datasets
+from mvcjax.geometry import _meshing
 
 # The middle of the free (left) front hoof.
 OTHER_HOOF = (255.0, 22.0)

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from mvcjax._coordinates import barycentric_coordinates, distance_outside, locate_points
 from mvcjax.advanced import mean_value_coordinates
+from mvcjax.geometry._coordinates import barycentric_coordinates, distance_outside, locate_points
 
 HEXAGON = np.array([[np.cos(a), np.sin(a)] for a in np.linspace(0, 2 * np.pi, 6, endpoint=False)])
 # A non-convex, star-shaped polygon, as the stars of eq. 1 often are.

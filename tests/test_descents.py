@@ -9,13 +9,13 @@ import optimistix as optx
 import pytest
 
 import mvcjax
-from mvcjax._solvers._descents import (
+from mvcjax.solvers._descents import (
     DoglegDescent,
     StructuredDampedNewtonDescent,
     StructuredDoglegDescent,
     StructuredNewtonDescent,
 )
-from mvcjax._solvers._least_squares import ScaledProblem
+from mvcjax.solvers._least_squares import ScaledProblem
 
 from conftest import local_point
 

@@ -5,8 +5,8 @@ import pytest
 
 import mvcjax
 from mvcjax import datasets
-from mvcjax._energy import rigid_alignment
-from mvcjax._factor import dense_factor, operators
+from mvcjax.energy._energy import rigid_alignment
+from mvcjax.energy._factor import dense_factor, operators
 
 from conftest import directional_derivatives, drag, local_point
 

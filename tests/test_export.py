@@ -10,7 +10,8 @@ import pytest
 from PIL import Image
 
 import mvcjax
-from mvcjax import _progress, export
+from mvcjax import export
+from mvcjax.core import _progress
 
 COUNT, ROWS, COLS = 5, 24, 32
 

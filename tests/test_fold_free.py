@@ -9,7 +9,7 @@ import pytest
 
 import mvcjax
 from mvcjax import datasets
-from mvcjax._folds import largest_safe_step, signed_areas
+from mvcjax.geometry._folds import largest_safe_step, signed_areas
 
 from conftest import directional_derivatives
 

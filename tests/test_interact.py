@@ -124,7 +124,7 @@ def test_moves_after_release_or_away_from_handles_change_nothing(horse_rig32):
 def shape_point_away_from_handles(rig, seed=0):
     """A shape-mesh vertex inside the horse, far from every handle and the outline."""
     v = np.asarray(rig.shape_mesh.vertices, np.float64)
-    loops = mvcjax._topology.boundary_loops(np.asarray(rig.shape_mesh.faces))
+    loops = mvcjax.geometry._topology.boundary_loops(np.asarray(rig.shape_mesh.faces))
     handles = np.asarray(rig.handle_positions)
     far = np.min(np.linalg.norm(v[:, None] - handles[None], axis=2), axis=1)
     ok = np.setdiff1d(np.flatnonzero(far > 60.0), np.concatenate(loops))
@@ -486,7 +486,7 @@ def test_the_hint_is_drawn_from_cached_glyphs_as_the_whole_text_would_be():
 
 
 def test_the_default_solver_is_that_of_rig_deform(horse_rig32):
-    from mvcjax._solvers import DEFAULT_SOLVER
+    from mvcjax.solvers import DEFAULT_SOLVER
 
     posing = mvcjax.interact(horse_rig32)
     assert posing.solver is DEFAULT_SOLVER

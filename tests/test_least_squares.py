@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import mvcjax
-from mvcjax._solvers._least_squares import ScaledProblem
+from mvcjax.solvers._least_squares import ScaledProblem
 
 from conftest import local_point
 

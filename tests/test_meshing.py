@@ -4,7 +4,7 @@ import pytest
 import shapely
 
 import mvcjax
-from mvcjax._meshing import (
+from mvcjax.geometry._meshing import (
     control_polygon,
     hilbert_order,
     triangulate_control,

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 import mvcjax
-from mvcjax._solvers import _normal_cg
-from mvcjax._solvers._least_squares import ScaledProblem
-from mvcjax._solvers._normal_cg import GaussNewtonMatrix, conjugate_gradient
+from mvcjax.solvers import _normal_cg
+from mvcjax.solvers._least_squares import ScaledProblem
+from mvcjax.solvers._normal_cg import GaussNewtonMatrix, conjugate_gradient
 
 from conftest import local_point
 

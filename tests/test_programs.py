@@ -5,7 +5,7 @@ import jax
 import numpy as np
 
 import mvcjax
-from mvcjax import _programs
+from mvcjax.rig import _programs
 
 
 def star(points, outer=60.0, inner=30.0):

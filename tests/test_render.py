@@ -213,7 +213,7 @@ def test_vmap_draws_frames_in_turn_as_the_plain_vmap_would_with_gradients(render
     # same pictures as JAX's batching of the single frame's drawing, per-frame windows
     # ("grow") too, and the gradients of single frames; a batch of renderers is batched
     # by JAX.
-    from mvcjax._render import _draw
+    from mvcjax.render._render import _draw
 
     frames = jnp.stack([rig.shape_mesh.vertices * (1.0 + 0.1 * s) + jnp.array([s, -s])
                         for s in range(3)])
@@ -252,7 +252,7 @@ def test_shading_only_the_drawn_pixels_equals_shading_every_pixel(renderer256, r
     # (at 256 x 256 none, 1, 4 or 8 chunks: these shares take each), which must all
     # give what shading every pixel and keeping the drawn ones gives; at 45 x 61 the
     # last run is padded.
-    from mvcjax._render import (
+    from mvcjax.render._render import (
         _face_table,
         _shade,
         _shade_steps,
@@ -578,7 +578,7 @@ def test_frames_say_once_that_an_animation_leaves_the_window(renderer, rig, pict
 
 def _sprite_arm_across_the_chest():
     from mvcjax import datasets
-    from mvcjax._handles import parse_handles
+    from mvcjax.rig._handles import parse_handles
 
     rig = mvcjax.Rig.build(datasets.sprite(), datasets.sprite_handles())
     targets, _, _ = parse_handles(datasets.sprite_handles())

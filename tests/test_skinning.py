@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 import mvcjax
-from mvcjax import _skinning, datasets
+from mvcjax import datasets
+from mvcjax.geometry import _skinning
 
 # Agreement with references to many digits, and the solvers' internals: in float64.
 pytestmark = pytest.mark.float64

@@ -1,4 +1,4 @@
-"""The docs' tables agree with the results they are written from (`benchmarks/tables.py`):
+"""The docs' tables agree with the results they are written from (`tools/tables.py`):
 a table edited by hand, or results rerun without the tables, fails here as in CI."""
 
 import pathlib
@@ -8,13 +8,13 @@ import sys
 import pytest
 
 ROOT = pathlib.Path(__file__).parent.parent
-sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.insert(0, str(ROOT / "tools"))
 
 import tables  # noqa: E402
 
 
 def test_every_table_agrees_with_its_results():
-    assert tables.stale() == [], "run `python benchmarks/tables.py` to rewrite them"
+    assert tables.stale() == [], "run `python tools/tables.py` to rewrite them"
 
 
 def test_every_results_file_has_a_table():

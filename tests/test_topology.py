@@ -3,7 +3,7 @@ import pytest
 import triangle
 from hypothesis import given, settings, strategies as st
 
-from mvcjax._topology import (
+from mvcjax.geometry._topology import (
     boundary_edges,
     boundary_loops,
     edges,

@@ -1,0 +1,20 @@
+"""What every stage uses: the checks at mvcjax's edges (errors naming the argument and
+the fix), transfers to the device, the module base and the batching helpers."""
+
+from ._batching import (
+    one_after_another as one_after_another,
+    only_batched as only_batched,
+    with_batching_rule as with_batching_rule,
+)
+from ._checks import (
+    as_array as as_array,
+    as_devices as as_devices,
+    as_points as as_points,
+    check_targets as check_targets,
+    finite_when_traced as finite_when_traced,
+    kind_of as kind_of,
+    whole_number as whole_number,
+)
+from ._module import JittableModule as JittableModule
+from ._progress import progress_bar as progress_bar
+from ._xla import materialise as materialise, to_device as to_device

@@ -1,0 +1,121 @@
+"""Where a solve starts: the rest control mesh moved rigidly onto the handles, or turned
+with them.
+
+The energy (6) has several minima, and every solver settles in the one its start leads
+to. From the rest mesh (or the rest mesh moved rigidly), a limb that a bone turns by 90
+degrees is squeezed by the first global step, which keeps every Laplacian and edge
+vector's rest direction; the local steps then turn it back only slowly, and may leave
+it folded. The turned start carries each handle's turn into the mesh instead: the
+angle each bone turned through (and, for point handles, the angle of the handles'
+best rigid motion) is spread over the control vertices harmonically, every Laplacian
+and edge target becomes its rest vector turned by the angle where it lies, and one
+global step gives the vertices that meet these targets and the handles best.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse
+import scipy.sparse.linalg
+from jaxtyping import Array, Float, Int
+
+from ..energy import AbstractFactor, Energy, rigid_alignment, rigid_start
+from ..geometry import edges as mesh_edges
+from ._handles import Handles
+
+STARTS = ("turned", "rigid", "rest")
+
+
+def turn_weights(
+    vertices: Float[np.ndarray, "n 2"],
+    faces: Int[np.ndarray, "f 3"],
+    pinned: Int[np.ndarray, " r"],
+) -> Float[np.ndarray, "n r"]:
+    """Harmonic weights that spread a value given at each pinned row over the mesh.
+
+    Row `r` pins vertex `pinned[r]`; rows pinning one vertex share it equally. Every
+    other vertex takes the weighted mean of its neighbours (edge weights the inverse
+    rest lengths, so that a finely meshed stretch does not pull harder). Each row of the
+    result sums to 1: equal values everywhere spread to that value.
+    """
+    vertices, faces, pinned = np.asarray(vertices), np.asarray(faces), np.asarray(pinned)
+    n, r = len(vertices), len(pinned)
+    e = mesh_edges(faces)
+    w = 1.0 / np.maximum(np.linalg.norm(vertices[e[:, 0]] - vertices[e[:, 1]], axis=1),
+                         np.finfo(np.float64).tiny)
+    adjacency = scipy.sparse.coo_matrix(
+        (np.r_[w, w], (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)
+    ).tocsr()
+    laplacian = scipy.sparse.diags(np.asarray(adjacency.sum(axis=1)).ravel()) - adjacency
+    fixed = np.unique(pinned)
+    share = np.zeros((len(fixed), r))
+    share[np.searchsorted(fixed, pinned), np.arange(r)] = 1.0
+    share /= share.sum(axis=1, keepdims=True)
+    weights = np.zeros((n, r))
+    weights[fixed] = share
+    free = np.setdiff1d(np.arange(n), fixed)
+    if len(free):
+        inner = laplacian[free][:, free].tocsc()
+        # A part of the mesh no pinned vertex reaches has a singular block: a tiny
+        # pull towards the mean keeps it solvable (it then takes the handles' mean).
+        inner = inner + scipy.sparse.identity(len(free)) * (1e-12 * w.max())
+        boundary = laplacian[free][:, fixed] @ share
+        weights[free] = -scipy.sparse.linalg.splu(inner).solve(np.asarray(boundary))
+        weights[free] /= np.maximum(weights[free].sum(axis=1, keepdims=True), 1e-300)
+    return weights
+
+
+def handle_turns(handles: Handles, targets: Float[Array, "t 2"],
+                 common: Float[Array, ""]) -> Float[Array, " r"]:
+    """The angle each pinned row turns through: its bone's, from the bone's rest
+    direction to the direction of its targets, taken within half a turn of `common`
+    (the handles' rigid turn), or `common` itself for a point handle (and for a row
+    that pins nothing)."""
+    # A point handle, or a bone dragged to one point, has no direction: it turns with
+    # the rest (a stand-in direction keeps the gradients finite).
+    d = targets[handles.second] - targets[handles.first]
+    rest = handles.rest[handles.second] - handles.rest[handles.first]
+    bone = ((handles.first != handles.second) & (jnp.sum(d * d, axis=1) > 0)
+            & handles.row_active())
+    d = jnp.where(bone[:, None], d, jnp.ones_like(d))
+    rest = jnp.where(bone[:, None], rest, jnp.ones_like(rest))
+    turn = jnp.arctan2(d[:, 1], d[:, 0]) - jnp.arctan2(rest[:, 1], rest[:, 0])
+    relative = jnp.mod(turn - common + jnp.pi, 2 * jnp.pi) - jnp.pi
+    return common + jnp.where(bone, relative, 0.0)
+
+
+def turned_start(
+    energy: Energy,
+    factor: AbstractFactor,
+    handles: Handles,
+    weights: Float[Array, "n r"],
+    targets: Float[Array, "t 2"],
+) -> Float[Array, "n 2"]:
+    """The turned start for `targets` (the rig's frame, one row per target): see the
+    module's docstring."""
+    pinned = handles.pinned_targets(targets)
+    rot, _ = rigid_alignment(energy.handle_points(energy.rest), pinned,
+                             energy.handle_presence())
+    common = jnp.arctan2(rot[1, 0], rot[0, 0])
+    angle = weights @ handle_turns(handles, targets, common)
+    # A row's angle: the mean of its vertices', weighted as the row weighs them.
+    coef = jnp.abs(factor.coef)
+    total = jnp.sum(coef, axis=1)  # zero on a padded row (a stack's degenerate triangle)
+    row_angle = jnp.sum(coef * angle[factor.rows], axis=1) / jnp.where(total > 0, total, 1)
+    part = factor.handle_part(pinned)
+    local = part.rest_local * jnp.exp(1j * row_angle.astype(part.rest_local.real.dtype))
+    return factor.global_step(local.astype(part.rest_local.dtype), part).T
+
+
+def start_vertices(energy: Energy, factor: AbstractFactor, handles: Handles,
+                   weights: Float[Array, "n r"], targets: Float[Array, "t 2"],
+                   init: str) -> Float[Array, "n 2"]:
+    """The start named by `init` (one of `STARTS`) for targets in the rig's frame."""
+    if init == "turned":
+        return turned_start(energy, factor, handles, weights, targets)
+    if init == "rigid":
+        return rigid_start(energy, handles.pinned_targets(targets))
+    if init == "rest":
+        return energy.rest
+    raise ValueError(f"init must be one of {STARTS} or an array, got {init!r}.")

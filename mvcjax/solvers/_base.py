@@ -1,0 +1,207 @@
+"""The interface every solver of the energy (6) shares."""
+
+from __future__ import annotations
+
+import abc
+from typing import Any
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float, Int
+
+from ..energy import AbstractFactor, Energy
+from ..geometry import Skinning
+
+
+class SolveInfo(eqx.Module):
+    """What a solve did.
+
+    Attributes:
+        converged: whether the solver met its tolerance (a fixed iteration count that
+            did not is reported as not converged, not hidden).
+        iterations: the number of steps taken.
+        energy: the energy (6) at the returned control vertices.
+        inverted: how many control triangles the pose turned inside out (0 for a pose
+            without folds; `FoldFree` keeps it at 0). The shape mesh follows the
+            control mesh, so a fold here is a fold in the picture.
+        handle_miss: the largest distance from a pinned point to its target, in the
+            user's units: how far the pose is from what the handles ask (a `FoldFree`
+            pose that would have to fold to reach them stops short, and this says by
+            how much).
+
+    A solver itself fills the first three; `Rig.solve` and `Rig.deform` add the last two.
+    """
+
+    converged: Bool[Array, ""]
+    iterations: Int[Array, ""]
+    energy: Float[Array, ""]
+    inverted: Int[Array, ""] | None = None
+    handle_miss: Float[Array, ""] | None = None
+
+    def rescaled(self, energy_factor, vertices=None) -> SolveInfo:
+        """The info with the energy times `energy_factor` (from the rig's frame to the
+        user's units), no longer converged if that energy (or the given `vertices`, in
+        those units) is not finite: a finite solve in the frame may overflow outside it."""
+        energy = self.energy * energy_factor
+        converged = self.converged & jnp.isfinite(energy)
+        if vertices is not None:
+            converged = converged & jnp.all(jnp.isfinite(vertices))
+        return SolveInfo(converged=converged, iterations=self.iterations, energy=energy,
+                         inverted=self.inverted, handle_miss=self.handle_miss)
+
+
+class SkinnedMesh(eqx.Module):
+    """The shape mesh as the control vertices carry it (`V_S = W V_C`, the rig's
+    skinning): what a solver that watches the drawn shape needs.
+
+    Attributes:
+        faces: `(f, 3)` the shape mesh's counter-clockwise triangles.
+        skinning: the rig's skinning (in the rig's frame, linear).
+    """
+
+    faces: Int[Array, "f 3"]
+    skinning: Skinning
+
+    def carry(self, y: Float[Array, "2 c"]) -> Float[Array, "2 n"]:
+        """`W` applied to control coordinates, coordinate-major."""
+        return jnp.einsum("nk,dnk->dn", self.skinning.weights, y[:, self.skinning.indices])
+
+
+class AbstractSolver(eqx.Module):
+    """A solver of the energy (6): a frozen configuration with one `solve` method.
+
+    Its fields are static configuration: changing one compiles anew, while new targets
+    or weights never do.
+    """
+
+    @abc.abstractmethod
+    def solve(
+        self,
+        energy: Energy,
+        factor: AbstractFactor,
+        targets: Float[Array, "h 2"],
+        init: Float[Array, "n 2"],
+    ) -> tuple[Float[Array, "n 2"], SolveInfo]:
+        """Minimise the energy from `init`; return control vertices and a `SolveInfo`.
+
+        Args:
+            energy: the rig's energy data and weights.
+            factor: the rig's precomputed global step (dense `G` or a sparse factor;
+                solvers that do not need it ignore it).
+            targets: `(h, 2)` handle targets.
+            init: `(n, 2)` starting control vertices.
+        """
+
+    def solve_skinned(
+        self,
+        energy: Energy,
+        factor: AbstractFactor,
+        targets: Float[Array, "h 2"],
+        init: Float[Array, "n 2"],
+        shape: SkinnedMesh,
+    ) -> tuple[Float[Array, "n 2"], SolveInfo]:
+        """`solve`, told how the shape mesh follows the control vertices: what the rig
+        calls. A solver that keeps an eye on the shape mesh (`FoldFree`) overrides it;
+        the others solve the control mesh alone."""
+        del shape
+        return self.solve(energy, factor, targets, init)
+
+    def fixed_steps(self, steps: int) -> AbstractSolver:
+        """The same solver running exactly `steps` steps, its stopping test off: to time
+        solvers over equal numbers of steps. Its `converged` is then no verdict: `FixedG`
+        reports whether its tolerance held at the last step; the optimistix and jaxopt
+        solvers, whose stopping test is what is turned off, report `False`."""
+        raise NotImplementedError(f"{type(self).__name__} cannot run a fixed number of steps.")
+
+    def history(
+        self,
+        energy: Energy,
+        factor: AbstractFactor,
+        targets: Float[Array, "h 2"],
+        init: Float[Array, "n 2"],
+        steps: int,
+    ) -> Float[Array, " {steps+1}"]:
+        """The energy at the start and after each of `steps` steps, stopping criteria
+        ignored (for comparing solvers; `Rig.energy_history` is the public entry).
+
+        A step is one iteration of the solver's own loop: one fixed-G step, or one
+        optimistix or jaxopt step (which may be a rejected trial).
+        """
+        raise NotImplementedError(f"{type(self).__name__} does not record its history.")
+
+
+def python_scalar(value):
+    """A numpy scalar as the Python number it holds (static fields must hash and compare
+    as plain values); anything else unchanged, for the checks to judge."""
+    return value.item() if isinstance(value, (np.integer, np.floating)) else value
+
+
+def checked_in_init(value):
+    """An identity converter, for options whose `__check_init__` refuses a wrong value
+    (a string where an object is wanted) with the spelling to write: equinox then
+    leaves the argument unannotated, so that a runtime type checker does not answer
+    first with a bare type error."""
+    return value
+
+
+def check_count(solver: eqx.Module, name: str, minimum: int = 1) -> None:
+    """Refuse an option that must be a whole number (a Python or numpy int, not a bool
+    or a float) of at least `minimum`: TypeError for the type, ValueError for the value."""
+    value = getattr(solver, name)
+    where = f"{type(solver).__name__}({name}={value!r})"
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        whole = isinstance(value, float) and value.is_integer() and value >= minimum
+        raise TypeError(f"{where}: a whole number (int) >= {minimum} is needed, got "
+                        f"{type(value).__name__}; write e.g. "
+                        f"{name}={int(value) if whole else max(minimum, 1)}.")
+    if value < minimum:
+        raise ValueError(f"{where}: needs at least {minimum}.")
+
+
+def check_tolerance(solver: eqx.Module, name: str, default: str = "") -> None:
+    """Refuse a tolerance that is not a finite real number >= 0 (None means the default,
+    where there is one): TypeError for the type, ValueError for the value."""
+    value = getattr(solver, name)
+    if value is None and default:
+        return
+    where = f"{type(solver).__name__}({name}={value!r})"
+    fix = f" (or None for the default {default})" if default else ""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{where}: a tolerance must be a finite number >= 0{fix}, got "
+                        f"{type(value).__name__}.")
+    if not np.isfinite(value) or value < 0:
+        raise ValueError(f"{where}: a tolerance must be a finite number >= 0{fix}.")
+
+
+def converged_and_finite(converged: Array, vertices: Array, energy: Array) -> Array:
+    """A solve converged only if its result is finite: a tolerance met at an infinite
+    energy (a target at 1e20) is no convergence."""
+    return converged & jnp.isfinite(energy) & jnp.all(jnp.isfinite(vertices))
+
+
+def check_steps(solver: AbstractSolver, steps: Any) -> int:
+    """`steps` for `fixed_steps`, refused unless a whole number >= 1."""
+    where = f"{type(solver).__name__}.fixed_steps({steps!r})"
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)):
+        raise TypeError(f"{where}: the number of steps must be a whole number (int) >= 1, got "
+                        f"{type(steps).__name__}.")
+    if steps < 1:
+        raise ValueError(f"{where}: needs at least 1 step.")
+    return int(steps)
+
+
+def check_solver(solver, name: str = "solver"):
+    """`solver` itself if it is an mvcjax solver object; otherwise a TypeError with the
+    spelling that works (a solver's name as a string is a common slip)."""
+    if isinstance(solver, AbstractSolver):
+        return solver
+    if isinstance(solver, str):
+        fix = f"mvcjax.{solver}()" if solver.isidentifier() else "mvcjax.GaussNewton()"
+        raise TypeError(f"{name} must be an mvcjax solver object, not the string {solver!r}; "
+                        f"write {fix}.")
+    if isinstance(solver, type) and issubclass(solver, AbstractSolver):
+        raise TypeError(f"{name} must be an mvcjax solver object, got the class "
+                        f"{solver.__name__}; write mvcjax.{solver.__name__}().")
+    raise TypeError(f"{name} must be an mvcjax solver such as mvcjax.FixedG() or "
+                    f"mvcjax.GaussNewton(), got {type(solver).__name__}.")
