@@ -137,14 +137,14 @@ def _draw_at(ref: str):
 
     import mvcjax
 
-    source = subprocess.run(["git", "show", f"{ref}:mvcjax/render/_render.py"], check=True,
+    source = subprocess.run(["git", "show", f"{ref}:mvcjax/rendering/_render.py"], check=True,
                             capture_output=True, text=True,
                             cwd=os.path.dirname(os.path.abspath(__file__))).stdout
     name = "mvcjax._render_at_baseline"
     module = importlib.util.module_from_spec(importlib.util.spec_from_loader(name, None))
     module.__package__ = mvcjax.__name__
     sys.modules[name] = module  # dataclasses look their module up while it runs
-    exec(compile(source, f"{ref}:mvcjax/render/_render.py", "exec"), module.__dict__)
+    exec(compile(source, f"{ref}:mvcjax/rendering/_render.py", "exec"), module.__dict__)
     return module._draw
 
 
@@ -153,7 +153,7 @@ def _against_baseline(renderer, singles, ref: str, repeats: int) -> dict:
     import jax
     import numpy as np
 
-    from mvcjax.render._render import _draw
+    from mvcjax.rendering._render import _draw
 
     before = _draw_at(ref)
     ways = {"now": jax.jit(lambda v: _draw(renderer, v, renderer.window)),

@@ -91,8 +91,9 @@ def measure(name, shape, handles, drag, options, repeats, igl, figures):
     # The paper's energy, whatever mvcjax's default energy is.
     options = {**options, "weights": mvcjax.Weights.paper()}
     ours, preprocess = _built(lambda: mvcjax.Rig.build(shape, handles, **options))
-    bary = mvcjax.Rig.build(shape, handles, skinning=mvcjax.BarycentricSkinning(), **options)
-    paper = mvcjax.Rig.build(shape, handles, skinning=mvcjax.MVCSkinning(), **options)
+    bary = mvcjax.Rig.build(shape, handles, skinning=mvcjax.advanced.BarycentricSkinning(),
+                            **options)
+    paper = mvcjax.Rig.build(shape, handles, skinning=mvcjax.advanced.MVCSkinning(), **options)
     full_options = {k: v for k, v in options.items()
                     if k in ("shape_spacing", "dtype", "weights")}
     full, full_preprocess = _built(
@@ -139,9 +140,9 @@ def measure(name, shape, handles, drag, options, repeats, igl, figures):
     out = {key: np.asarray(fn(*args[-1]), np.float64) for key, (fn, args) in timed.items()}
     for key, result in out.items():
         if key != "ra":
-            mean, worst = mvcjax.difference(result, out["ra"], rest)
+            mean, worst = mvcjax.advanced.difference(result, out["ra"], rest)
             row[f"{key}_difference_mean_pct"], row[f"{key}_difference_max_pct"] = mean, worst
-        row[f"{key}_smoothness"] = mvcjax.smoothness(rest, result, faces)
+        row[f"{key}_smoothness"] = mvcjax.advanced.smoothness(rest, result, faces)
         row[f"{key}_flipped"] = mvcjax.flipped_triangles(rest, result, faces)
     if figures is not None:
         _figure(ours, out, np.asarray(targets), figures / f"{name}.png", name)

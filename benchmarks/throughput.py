@@ -96,7 +96,8 @@ def bandwidth_gb_s(repeats: int) -> dict:
 def _rig(shape, handles, target: int, skinning: str):
     import mvcjax
 
-    method = {"blended": mvcjax.BlendedMVCSkinning(), "mvc": mvcjax.MVCSkinning()}[skinning]
+    method = {"blended": mvcjax.advanced.BlendedMVCSkinning(),
+              "mvc": mvcjax.advanced.MVCSkinning()}[skinning]
     return mvcjax.Rig.build(shape, handles, shape_spacing=spacing_for(shape, target),
                             skinning=method)
 

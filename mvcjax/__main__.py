@@ -227,7 +227,8 @@ def _dataset(args) -> int:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="mvcjax", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
-    demo = sub.add_parser("demo", help="deform the built-in horse and write a figure")
+    demo = sub.add_parser("demo", help="deform the built-in horse and write a figure",
+                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     demo.add_argument("--out", default="mvcjax-demo.png", help="PNG figure to write")
     demo.add_argument("--animation", default="mvcjax-demo.gif",
                       help="animation to write (.gif, .png, .webp or .mp4)")
@@ -246,7 +247,8 @@ def main(argv=None) -> int:
         description="Rig every sprite of a folder (pictures with alpha, or opaque pictures "
         "keyed from their corner colour), pose each at random within limits (no folds), "
         "and write the posed pictures, masks and handle targets (mvcjax.generate). Run it "
-        "again with the same options to finish an interrupted dataset.")
+        "again with the same options to finish an interrupted dataset.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     dataset.add_argument("sprites", help="a folder of sprites, or a label with --glyphs")
     dataset.add_argument("out", help="the folder to write")
     dataset.add_argument("--glyphs", default=None,
@@ -262,7 +264,7 @@ def main(argv=None) -> int:
     for name in ("offset", "spread", "turn", "bone_turn"):
         dataset.add_argument(f"--{name.replace('_', '-')}", type=float,
                              default=getattr(limits, name),
-                             help=f"PoseLimits.{name} (default {getattr(limits, name)})")
+                             help=f"PoseLimits.{name}")
     dataset.add_argument("--folds", action="store_true", help="keep poses that fold")
     dataset.add_argument("--progress", choices=("on", "off"), default=None)
     dataset.add_argument("--coordinator", default=None, help="host:port of process 0, to "

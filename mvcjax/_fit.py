@@ -27,7 +27,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from .character import Character, CharacterRenderer
 from .core import kind_of, whole_number
-from .render import Renderer, as_picture, check_drawn_mesh, in_window
+from .rendering import Renderer, as_picture, check_drawn_mesh, in_window
 from .rig import Rig
 from .solvers import DEFAULT_SOLVER, AbstractSolver, check_solver
 

@@ -35,7 +35,7 @@ from ._animation import deform_frames
 from .character import Character, CharacterRenderer
 from .export import write_animation
 from .geometry import barycentric_coordinates, boundary_loops, edges, locate_points, signed_areas
-from .render import Renderer, check_drawn_mesh, check_window, fit_window, in_window
+from .rendering import Renderer, check_drawn_mesh, check_window, fit_window, in_window
 from .rig import Rig, pin_state, pinned_row, with_pin_state, with_rows
 from .solvers import DEFAULT_SOLVER, AbstractSolver, FoldFree, check_solver
 

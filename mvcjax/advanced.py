@@ -1,11 +1,15 @@
 """What a rig is made of, for those who extend mvcjax or study its method: the extension
 points (control meshes, factors, skinnings, solvers), the rig's internal data, the
-energy's terms as pure functions, the mean value coordinates themselves, and the jaxopt
-solvers kept for comparison.
+energy's terms as pure functions, the mean value coordinates themselves, the jaxopt
+solvers kept for comparison, the paper's skinning options, the types results come in
+(`SolveInfo`, `FitResult`, `CharacterRenderer`, `Layer`) and the metrics and textures
+the benchmarks use.
 
 Posing, rendering, exporting and fitting need none of it: those live in `mvcjax`.
 """
 
+from ._fit import FitResult as FitResult
+from .character import CharacterRenderer as CharacterRenderer, Layer as Layer
 from .energy import (
     AbstractFactor as AbstractFactor,
     AbstractFactorMethod as AbstractFactorMethod,
@@ -28,9 +32,15 @@ from .energy import (
 )
 from .geometry import (
     AbstractSkinning as AbstractSkinning,
+    BarycentricSkinning as BarycentricSkinning,
+    BlendedMVCSkinning as BlendedMVCSkinning,
+    MVCSkinning as MVCSkinning,
     Skinning as Skinning,
+    difference as difference,
     mean_value_coordinates as mean_value_coordinates,
+    smoothness as smoothness,
 )
+from .rendering import checkerboard as checkerboard, core_depth as core_depth
 from .rig import (
     AbstractControl as AbstractControl,
     ControlMesh as ControlMesh,
@@ -41,5 +51,6 @@ from .solvers import (
     AbstractSolver as AbstractSolver,
     JaxoptGaussNewton as JaxoptGaussNewton,
     JaxoptLevenbergMarquardt as JaxoptLevenbergMarquardt,
+    SolveInfo as SolveInfo,
     StructuredCG as StructuredCG,
 )

@@ -240,7 +240,7 @@ class Model:
 
     def rig(self, **overrides) -> Rig:
         """`Rig.build(shape, handles, **options)`, any option replaced by `overrides`
-        (e.g. `dtype=jnp.float32`, `skinning=mvcjax.MVCSkinning()`)."""
+        (e.g. `dtype=jnp.float32`, `skinning=mvcjax.advanced.MVCSkinning()`)."""
         # Imported here: loading the datasets should not pull in JAX, nor make a cycle
         # through the package's __init__, which imports this module first.
         return Rig.build(self.shape, self.handles, **{**self.options, **overrides})
@@ -443,7 +443,7 @@ _FIGURE_WRIST_IN = 14.0  # the wrist handles sit this far in from the arms' tips
 
 def layered_figure() -> list:
     """A figure drawn in layers, bottom first, for `mvcjax.Character.build`: a list of
-    four `mvcjax.Layer`s on one 240 x 260 canvas (straight RGBA floats).
+    four `mvcjax.advanced.Layer`s on one 240 x 260 canvas (straight RGBA floats).
 
     `"body"` (head, neck, torso, legs, feet, as `sprite_picture()`'s), `"left arm"`
     (with its hand) and `"right arm"`, capsules 16 wide and 70 long from the shoulders,

@@ -17,14 +17,13 @@ from __future__ import annotations
 import math
 import os
 import warnings
-from numbers import Integral, Real
 from pathlib import Path
 from typing import Any
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from .core import as_points, kind_of, progress_bar
+from .core import as_points, is_real_number, is_whole_number, kind_of, progress_bar
 from .geometry import (
     as_matte_rgb,
     boundary_loops,
@@ -127,7 +126,7 @@ def _as_frames(frames) -> list[np.ndarray]:
 def _check_quality(quality) -> None:
     if quality is None:
         return
-    if isinstance(quality, bool) or not isinstance(quality, Real) or not 0 <= quality <= 100:
+    if not is_real_number(quality) or not 0 <= quality <= 100:
         raise ValueError(f"quality must be a number from 0 to 100 (or None for the format's "
                          f"default), got {quality!r}.")
 
@@ -254,9 +253,9 @@ def write_animation(
 
 def _check_timing(fps, loop, progress) -> None:
     """`write_animation`'s `fps`, `loop` and `progress`, or an error naming the one."""
-    if isinstance(fps, bool) or not isinstance(fps, Real) or not 0 < fps < math.inf:
+    if not is_real_number(fps) or not 0 < fps < math.inf:
         raise ValueError(f"fps must be a positive number of frames per second, got {fps!r}.")
-    if isinstance(loop, bool) or not isinstance(loop, Integral) or loop < 0:
+    if not is_whole_number(loop) or loop < 0:
         raise ValueError(f"loop must be how many times to play, an integer >= 0 (0 for ever), "
                          f"got {loop!r}.")
     if progress is not None and not isinstance(progress, bool):
@@ -505,7 +504,7 @@ def write_svg(
     """
     rings = _as_rings(outline_or_rings)
     for name, value in (("margin", margin), ("width", width), ("stroke_width", stroke_width)):
-        if value is not None and (isinstance(value, bool) or not isinstance(value, Real)
+        if value is not None and (not is_real_number(value)
                                   or not 0 <= value < math.inf):
             raise ValueError(f"{name} must be a finite number >= 0, got {value!r}.")
     for name, value in (("fill", fill), ("stroke", stroke)):
@@ -568,7 +567,7 @@ def texture_uv(points: Any, rows: Any, cols: Any) -> np.ndarray:
         `(n, 2)` float64 `(u, v)`, in `[0, 1]` for points on the picture.
     """
     for name, value in (("rows", rows), ("cols", cols)):
-        if isinstance(value, bool) or not isinstance(value, Integral) or value < 1:
+        if not is_whole_number(value) or value < 1:
             raise ValueError(f"{name} must be a positive whole number of pixels, got {value!r}.")
     xy = as_points(points, "points")
     return np.stack([(xy[:, 0] + 0.5) / cols, (xy[:, 1] + 0.5) / rows], axis=1)

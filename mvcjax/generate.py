@@ -26,10 +26,10 @@ import jax
 import numpy as np
 
 from ._animation import deform_frames
-from .core import as_devices, progress_bar, whole_number
+from .core import as_devices, is_real_number, progress_bar, whole_number
 from .datasets import glyph, glyph_handles
 from .geometry import Shape, cut_out, flipped_triangles, load_image
-from .render import Renderer, check_size, fill_texture, fit_window, to_pixels
+from .rendering import Renderer, check_size, fill_texture, fit_window, to_pixels
 from .rig import Rig
 
 FORMAT = "mvcjax-posed-dataset"
@@ -74,8 +74,7 @@ class PoseLimits:
     def __post_init__(self):
         for name in ("offset", "spread", "turn", "bone_turn"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) \
-                    or not np.isfinite(value) or value < 0:
+            if not is_real_number(value) or not np.isfinite(value) or value < 0:
                 raise ValueError(f"PoseLimits({name}={value!r}): give a finite number >= 0.")
         if not isinstance(self.folds, (bool, np.bool_)):
             raise TypeError(f"PoseLimits(folds={self.folds!r}): folds is True or False.")

@@ -181,7 +181,7 @@ plot_fit(textured, found, target,
 # pose: every gradient comes from the boundary. The renderer antialiases the mesh's
 # boundary edges: a pixel whose centre lies at signed distance `d` (in pixels, positive
 # inside) from a boundary edge is covered `clip(0.5 + d, 0, 1)`, a linear ramp one pixel
-# wide (see the module docstring of `mvcjax/render/_render.py`). Coverage is a smooth
+# wide (see the module docstring of `mvcjax/rendering/_render.py`). Coverage is a smooth
 # function of the edge's vertices there, so the pixels the outline crosses tell each
 # vertex which way to go, and `rig.deform` carries that back to the handles.
 #

@@ -22,9 +22,10 @@
 #
 # - (ga) the input, with its shape mesh and control mesh;
 # - (na) **control mesh only**: the shape mesh carried by barycentric coordinates of its
-#   control triangle (`Rig.build(..., skinning=mvcjax.BarycentricSkinning())`);
+#   control triangle (`Rig.build(..., skinning=mvcjax.advanced.BarycentricSkinning())`);
 # - (da) **control mesh + MVC**, the paper's method (`Rig.build(...)`; mvcjax's default
-#   skinning is a continuous blend of the MVC, `skinning=mvcjax.MVCSkinning()` is the paper's own);
+#   skinning is a continuous blend of the MVC,
+#   `skinning=mvcjax.advanced.MVCSkinning()` is the paper's own);
 # - (ra) the **full solve**: the same energy on the shape mesh itself
 #   (`Rig.build(..., control=mvcjax.FullSolve())`).
 #
@@ -56,9 +57,9 @@ def compare(name):
     model = datasets.model(name)
     paper = mvcjax.Weights.paper()
     rigs = {
-        "(na) control mesh only": model.rig(skinning=mvcjax.BarycentricSkinning(),
+        "(na) control mesh only": model.rig(skinning=mvcjax.advanced.BarycentricSkinning(),
                                             weights=paper),
-        "paper's MVC": model.rig(skinning=mvcjax.MVCSkinning(), weights=paper),
+        "paper's MVC": model.rig(skinning=mvcjax.advanced.MVCSkinning(), weights=paper),
         "(da) control mesh + MVC": model.rig(weights=paper),
         "(ra) full solve": mvcjax.Rig.build(
             model.shape, model.handles, control=mvcjax.FullSolve(), weights=paper,
@@ -73,8 +74,8 @@ def compare(name):
     full = out["(ra) full solve"]
     rows = []
     for key, result in out.items():
-        mean, worst = mvcjax.difference(result, full, rest)
-        rows.append((key, mean, worst, mvcjax.smoothness(rest, result, faces),
+        mean, worst = mvcjax.advanced.difference(result, full, rest)
+        rows.append((key, mean, worst, mvcjax.advanced.smoothness(rest, result, faces),
                      mvcjax.flipped_triangles(rest, result, faces)))
     return ours, targets, out, rows
 

@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from mvcjax import difference, flipped_triangles, smoothness
+from mvcjax import flipped_triangles
+from mvcjax.advanced import difference, smoothness
 
 SQUARE = np.array([[0, 0], [1, 0], [1, 1], [0, 1], [0.5, 0.5]], float)
 FAN = np.array([[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]])

@@ -71,7 +71,7 @@ def test_the_default_draw_order_is_decided_at_rest(renderer, rig):
     # pose at rest to rounding) can reorder the triangles.
     vertices = np.asarray(rig.shape_mesh.vertices)
     faces = np.asarray(rig.shape_mesh.faces)
-    depth = mvcjax.core_depth(vertices, faces)
+    depth = mvcjax.advanced.core_depth(vertices, faces)
     # Deepest inside the outline is the core, at depth 0; the farthest are the limbs' ends.
     assert depth.min() == 0 and depth.max() > 0.5 * np.ptp(vertices, axis=0).max()
     # The renderer keeps the triangles deepest last, in bands of depth.
@@ -102,11 +102,11 @@ def test_the_outline_is_one_edge_across_the_draw_levels(rig, picture):
 def test_core_depth_is_the_same_at_any_place_and_scale(rig):
     vertices = np.asarray(rig.shape_mesh.vertices, np.float64)
     faces = np.asarray(rig.shape_mesh.faces)
-    depth = mvcjax.core_depth(vertices, faces)
-    np.testing.assert_allclose(mvcjax.core_depth(vertices * 1e-3 + 500.0, faces) * 1e3,
+    depth = mvcjax.advanced.core_depth(vertices, faces)
+    np.testing.assert_allclose(mvcjax.advanced.core_depth(vertices * 1e-3 + 500.0, faces) * 1e3,
                                depth, rtol=1e-6, atol=1e-6 * depth.max())
     # Two pieces each have their own core.
-    two = mvcjax.core_depth(np.concatenate([vertices, vertices + 1e4]),
+    two = mvcjax.advanced.core_depth(np.concatenate([vertices, vertices + 1e4]),
                             np.concatenate([faces, faces + len(vertices)]))
     np.testing.assert_allclose(two, np.concatenate([depth, depth]))
 
@@ -213,7 +213,7 @@ def test_vmap_draws_frames_in_turn_as_the_plain_vmap_would_with_gradients(render
     # same pictures as JAX's batching of the single frame's drawing, per-frame windows
     # ("grow") too, and the gradients of single frames; a batch of renderers is batched
     # by JAX.
-    from mvcjax.render._render import _draw
+    from mvcjax.rendering._render import _draw
 
     frames = jnp.stack([rig.shape_mesh.vertices * (1.0 + 0.1 * s) + jnp.array([s, -s])
                         for s in range(3)])
@@ -252,7 +252,7 @@ def test_shading_only_the_drawn_pixels_equals_shading_every_pixel(renderer256, r
     # (at 256 x 256 none, 1, 4 or 8 chunks: these shares take each), which must all
     # give what shading every pixel and keeping the drawn ones gives; at 45 x 61 the
     # last run is padded.
-    from mvcjax.render._render import (
+    from mvcjax.rendering._render import (
         _face_table,
         _shade,
         _shade_steps,

@@ -236,7 +236,8 @@ def test_options_as_objects_build_what_the_old_spellings_do(horse, horse_rig):
                              factor=mvcjax.advanced.SparseLU())
     assert isinstance(given.factor, mvcjax.advanced.SparseFactor)
     paper = mvcjax.Rig.build(horse, handles, dtype=jnp.float64, control=mvcjax.PaperControl(),
-                             factor=mvcjax.advanced.DenseG(), skinning=mvcjax.BlendedMVCSkinning(),
+                             factor=mvcjax.advanced.DenseG(),
+                             skinning=mvcjax.advanced.BlendedMVCSkinning(),
                              weights=weights)
     targets = drag(horse_rig, [[30.0, 0.0], [0, 0], [0, 0], [0, 0], [0, 0]])
     for rig in (given, paper):
@@ -257,9 +258,9 @@ def test_options_as_objects_build_what_the_old_spellings_do(horse, horse_rig):
     ("factor", "sparse", "mvcjax.advanced.SparseLU()"),
     ("factor", "dense", "mvcjax.advanced.DenseG()"),
     ("factor", None, "mvcjax.advanced.FactorBySize()"),
-    ("skinning", "blended", "mvcjax.BlendedMVCSkinning()"),
-    ("skinning", "mvc", "mvcjax.MVCSkinning()"),
-    ("skinning", mvcjax.BarycentricSkinning, "mvcjax.BarycentricSkinning()"),
+    ("skinning", "blended", "mvcjax.advanced.BlendedMVCSkinning()"),
+    ("skinning", "mvc", "mvcjax.advanced.MVCSkinning()"),
+    ("skinning", mvcjax.advanced.BarycentricSkinning, "mvcjax.advanced.BarycentricSkinning()"),
 ])
 def test_older_spellings_are_refused_with_the_object_to_write(horse, option, spelling, fix):
     with pytest.raises(TypeError, match=rf"{option} must be .*; write {re.escape(fix)}"):

@@ -297,3 +297,18 @@ def test_sparse_rigs_of_one_size_share_a_program_and_keep_their_own_factor(ring_
         np.testing.assert_allclose(deform(rig, rig.handle_positions), rig.shape_mesh.vertices,
                                    atol=1e-9)
     assert len(traces) == 1
+
+
+@pytest.mark.parametrize("transform", ["jit", "vmap", "grad", "jit of Rig.deform"])
+def test_non_finite_targets_are_refused_under_transformations(transform):
+    # The plain call refuses NaN targets on the host; traced, they are checked when run,
+    # with the same words, instead of giving NaN vertices.
+    rig = mvcjax.Rig.build(mvcjax.Shape.from_polygon(star()), STAR_HANDLES, shape_spacing=0.2)
+    targets = np.asarray(rig.handle_positions).copy()
+    targets[1, 0] = np.nan
+    call = {"jit": lambda: jax.jit(rig.deform)(targets),
+            "vmap": lambda: jax.vmap(rig.deform)(np.stack([targets * 0 + 1, targets])),
+            "grad": lambda: jax.grad(lambda t: rig.deform(t).sum())(targets),
+            "jit of Rig.deform": lambda: jax.jit(mvcjax.Rig.deform)(rig, targets)}[transform]
+    with pytest.raises(Exception, match="targets contain NaN or infinite values"):
+        jax.block_until_ready(call())

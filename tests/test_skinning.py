@@ -10,8 +10,8 @@ from mvcjax.geometry import _skinning
 # Agreement with references to many digits, and the solvers' internals: in float64.
 pytestmark = pytest.mark.float64
 
-METHODS = {"blended": mvcjax.BlendedMVCSkinning, "mvc": mvcjax.MVCSkinning,
-           "barycentric": mvcjax.BarycentricSkinning}
+METHODS = {"blended": mvcjax.advanced.BlendedMVCSkinning, "mvc": mvcjax.advanced.MVCSkinning,
+           "barycentric": mvcjax.advanced.BarycentricSkinning}
 
 
 def test_skinning_weights_are_sound(horse_rig):
@@ -58,13 +58,14 @@ def test_blended_skinning_is_smoothest_and_the_default(horse, skinned_rigs):
     paper = mvcjax.FixedG()
     for name, rig in skinned_rigs.items():
         out = rig.deform(rig.handle_positions + datasets.horse_drag(), paper, init="rigid")
-        measured[name] = mvcjax.smoothness(rig.shape_mesh.vertices, out, rig.shape_mesh.faces)
+        measured[name] = mvcjax.advanced.smoothness(rig.shape_mesh.vertices, out,
+                                                    rig.shape_mesh.faces)
     # The paper's per-triangle MVC jumps across control edges; the blend does not.
     assert measured["blended"] < measured["barycentric"] < measured["mvc"], measured
     # As smooth as the full solve on the shape mesh, at the paper's 15 iterations each.
     full = mvcjax.Rig.build(horse, datasets.horse_handles(), control=mvcjax.FullSolve())
     out = full.deform(full.handle_positions + datasets.horse_drag(), paper, init="rigid")
-    assert measured["blended"] < 1.1 * mvcjax.smoothness(full.shape_mesh.vertices, out,
+    assert measured["blended"] < 1.1 * mvcjax.advanced.smoothness(full.shape_mesh.vertices, out,
                                                           full.shape_mesh.faces), measured
     default = mvcjax.Rig.build(horse, datasets.horse_handles())
     np.testing.assert_array_equal(default.skinning.indices,
@@ -139,7 +140,7 @@ def test_weights_at_points_outside_say_so(horse_rig):
 
 def test_weights_at_on_a_full_rig_are_barycentric_on_the_shape_mesh(horse):
     full = mvcjax.Rig.build(horse, datasets.horse_handles(), control=mvcjax.FullSolve())
-    assert full.skinning.method == mvcjax.BarycentricSkinning()
+    assert full.skinning.method == mvcjax.advanced.BarycentricSkinning()
     sm = full.shape_mesh
     centroids = np.asarray(sm.vertices)[np.asarray(sm.faces)].mean(axis=1)
     skin = full.weights_at(centroids)
@@ -171,7 +172,8 @@ def test_packed_rows_give_back_the_rows_and_the_same_map(tile):
     assert tile_weight.shape[2] == tile and len(np.unique(slot)) == 100
     np.testing.assert_array_equal(tile_index[:, slot // tile].T, index)
     np.testing.assert_array_equal(tile_weight[:, slot // tile, slot % tile].T, weight)
-    skin = mvcjax.advanced.Skinning.from_rows(index, weight, mvcjax.MVCSkinning(), jnp.float64)
+    skin = mvcjax.advanced.Skinning.from_rows(index, weight, mvcjax.advanced.MVCSkinning(),
+                                              jnp.float64)
     np.testing.assert_array_equal(skin.indices, index)
     np.testing.assert_array_equal(skin.weights, weight)
     control = jnp.asarray(rng.normal(size=(30, 2)))

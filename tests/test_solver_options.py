@@ -206,7 +206,7 @@ def test_an_overflowing_energy_is_not_converged(solver):
 
 
 def test_rescaled_info_is_not_converged_once_its_energy_overflows():
-    info = mvcjax.SolveInfo(converged=jnp.asarray(True), iterations=jnp.asarray(3),
+    info = mvcjax.advanced.SolveInfo(converged=jnp.asarray(True), iterations=jnp.asarray(3),
                             energy=jnp.asarray(1e30, jnp.float32))
     assert bool(info.rescaled(10.0).converged)
     assert float(info.rescaled(10.0).energy) == pytest.approx(1e31, rel=1e-6)

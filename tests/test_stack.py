@@ -142,7 +142,7 @@ def test_a_stack_of_renderers_draws_each_picture_as_alone(rigs64):
     for i, rig in enumerate(rigs64):
         n = rig.shape_mesh.vertices.shape[0]
         window = mvcjax.fit_window(np.asarray(poses[i, :, :n]).reshape(-1, 2), (40, 48))
-        picture = mvcjax.checkerboard(20 + 7 * i, 30 - 4 * i, cells=4)
+        picture = mvcjax.advanced.checkerboard(20 + 7 * i, 30 - 4 * i, cells=4)
         renderers.append(mvcjax.Renderer.build(
             rig, picture, size=(40, 48), window=window,
             image_window=np.concatenate([rig.shape_mesh.vertices.min(0) - 1,
@@ -180,7 +180,7 @@ def test_stacks_refuse_what_cannot_be_stacked(rigs64):
         mvcjax.Rig.stack([rigs[0], rigs64[1]])
     with pytest.raises(ValueError, match="same skinning"):
         mvcjax.Rig.stack([rigs[0], star_rigs(jnp.float32,
-                                             skinning=mvcjax.MVCSkinning())[1]])
+                                             skinning=mvcjax.advanced.MVCSkinning())[1]])
     with pytest.raises(TypeError, match="list of rigs"):
         mvcjax.Rig.stack(rigs[0])
     with pytest.raises(TypeError, match=r"rigs\[1\] is a str"):

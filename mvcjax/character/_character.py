@@ -28,7 +28,7 @@ from skimage.measure import label
 
 from ..core import JittableModule, check_targets, to_device, whole_number
 from ..geometry import Shape, Skinning, image_mask, to_uint8
-from ..render import Renderer, key_layout
+from ..rendering import Renderer, key_layout
 from ..rig import (
     Bone,
     ControlMesh,

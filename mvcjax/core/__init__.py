@@ -12,6 +12,8 @@ from ._checks import (
     as_points as as_points,
     check_targets as check_targets,
     finite_when_traced as finite_when_traced,
+    is_real_number as is_real_number,
+    is_whole_number as is_whole_number,
     kind_of as kind_of,
     whole_number as whole_number,
 )

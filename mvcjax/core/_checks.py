@@ -3,12 +3,15 @@ what was wrong and the fix."""
 
 from __future__ import annotations
 
+import numbers
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
+_NOT_FINITE = "targets contain NaN or infinite values; give finite (x, y) targets."
 _KINDS = {"c": "complex numbers", "b": "booleans", "U": "strings", "S": "bytes",
           "O": "Python objects", "M": "dates", "m": "time spans", "V": "records"}
 
@@ -58,11 +61,22 @@ def finite_when_traced(array, message: str):
     return eqx.error_if(array, ~jnp.all(jnp.isfinite(array)), message)
 
 
+def is_whole_number(value) -> bool:
+    """Whether `value` is a whole number: a Python or numpy int, not a bool (nor a float
+    that happens to be whole)."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+
+
+def is_real_number(value) -> bool:
+    """Whether `value` is a real number: a Python or numpy int or float, not a bool."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
 def whole_number(value, name: str, minimum: int = 1, what: str = "") -> int:
     """`value` as an int if it is a whole number (a Python or numpy int, not a bool or a
     float) of at least `minimum`: otherwise a TypeError for the type, a ValueError for
     the value, naming `name` (`what` says what it counts, e.g. " of frames")."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+    if not is_whole_number(value):
         raise TypeError(f"{name} must be a whole number{what} >= {minimum}, got {value!r}.")
     if value < minimum:
         raise ValueError(f"{name} must be a whole number{what} >= {minimum}, got {value!r}.")
@@ -84,15 +98,17 @@ def as_devices(devices) -> list | None:
 def check_targets(targets, h: int, dtype) -> Array:
     """`(h, 2)` handle targets as `dtype`, or an error naming the problem: concrete targets
     (also when closed over inside jit) are checked on the host for their type, shape,
-    finiteness and range; traced ones for their shape and type."""
-    if not isinstance(targets, jax.core.Tracer):
+    finiteness and range; traced ones for their shape and type, and for their finiteness
+    when they are run (`finite_when_traced`: under `jit` or `vmap`, NaN targets raise the
+    same error instead of giving NaN vertices)."""
+    traced = isinstance(targets, jax.core.Tracer)
+    if not traced:
         host = as_array(targets, "targets", f"an array of shape ({h}, 2)")
         if host.dtype.kind not in "iuf":
             raise TypeError(f"targets must be real (x, y) numbers, got {kind_of(host)}; "
                             f"pass a float array of shape ({h}, 2).")
         if host.shape == (h, 2) and not np.all(np.isfinite(host)):
-            raise ValueError("targets contain NaN or infinite values; give finite (x, y) "
-                             "targets.")
+            raise ValueError(_NOT_FINITE)
         with np.errstate(over="ignore"):
             representable = np.all(np.isfinite(host.astype(dtype)))
         if host.shape == (h, 2) and not representable:
@@ -110,4 +126,5 @@ def check_targets(targets, h: int, dtype) -> Array:
             f"targets must have shape ({h}, 2), one (x, y) per handle, got {targets.shape}; "
             "for several frames, use jax.vmap over a leading axis or mvcjax.deform_frames."
         )
-    return targets.astype(dtype)
+    targets = targets.astype(dtype)
+    return finite_when_traced(targets, _NOT_FINITE) if traced else targets

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 from jaxtyping import Bool, Float
 
-from ..core import kind_of, whole_number
+from ..core import is_real_number, kind_of, whole_number
 
 _CHANNELS = "(rows, cols) grey, (rows, cols, 3) RGB or (rows, cols, 4) RGBA"
 
@@ -143,7 +143,7 @@ def load_image(image: Any) -> Float[np.ndarray, "rows cols 4"]:
 
 def _number(value, name: str, below: str) -> float:
     """A finite number in 0 <= value < 1, or an error naming `name`."""
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+    if not is_real_number(value):
         raise TypeError(f"{name} must be a number from 0 to below 1, got {value!r}.")
     if not 0 <= value < 1:
         why = f": {below}" if value >= 1 else ""

@@ -11,7 +11,7 @@ import shapely
 import shapely.ops
 from jaxtyping import Float
 
-from ..core import as_array, as_points, kind_of
+from ..core import as_array, as_points, is_real_number, is_whole_number, kind_of
 from ._image import image_mask, is_pil_image
 
 
@@ -70,7 +70,7 @@ def _check_rings_apart(rings, normalised, centre, size) -> None:
 def _check_component(component, count: int, what: str) -> None:
     if component is None:
         return
-    if isinstance(component, bool) or not isinstance(component, (int, np.integer)):
+    if not is_whole_number(component):
         raise TypeError(f"component must be a whole number (0 for the largest {what}), got "
                         f"{component!r}.")
     if not 0 <= component < count:
@@ -172,8 +172,7 @@ def _check_mask(mask: np.ndarray) -> None:
 def _check_tolerances(tolerance, min_hole_area) -> None:
     """Refuse a `tolerance` or `min_hole_area` that is not a finite number >= 0."""
     for name, value in [("tolerance", tolerance), ("min_hole_area", min_hole_area)]:
-        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer,
-                                                              np.floating)):
+        if not is_real_number(value):
             raise TypeError(f"{name} must be a number >= 0, got {value!r}.")
         if not np.isfinite(value) or value < 0:
             raise ValueError(f"{name} must be a finite number >= 0, got {value}.")

@@ -120,8 +120,8 @@ def as_skinning(skinning) -> AbstractSkinning:
     if isinstance(skinning, type) and issubclass(skinning, AbstractSkinning):
         kind = skinning
     raise TypeError(
-        "skinning must be a skinning object, mvcjax.BlendedMVCSkinning(), "
-        f"mvcjax.MVCSkinning() or mvcjax.BarycentricSkinning(), got {skinning!r}"
+        "skinning must be a skinning object, mvcjax.advanced.BlendedMVCSkinning(), "
+        f"mvcjax.advanced.MVCSkinning() or mvcjax.advanced.BarycentricSkinning(), got {skinning!r}"
         + (f"; write mvcjax.{kind.__name__}()." if kind else ".")
     )
 

@@ -18,7 +18,6 @@ from __future__ import annotations
 import math
 import numbers
 import types
-import weakref
 
 import equinox as eqx
 import jax
@@ -119,22 +118,22 @@ def twin_parts(parts: dict, ladder: SizeLadder):
     return factor, energy, finish
 
 
-# Each laddered rig's twin, by the rig's id, for as long as the rig lives. Beside the
-# rig, not in it: an attribute of its own would change how equinox flattens it (and so
-# its pytree structure, which stacks and `jax.tree.map` compare with plain rigs').
-_TWINS: dict[int, object] = {}
+# Where a rig keeps its twin: an attribute of the rig object itself, not a dataclass field,
+# so not a pytree leaf. Equinox flattens a rig by its fields, so its pytree structure is a
+# plain rig's (stacks and `jax.tree.map` compare them), and a transformation, which
+# rebuilds a rig from its leaves, makes a rig without a twin; the twin goes with its rig.
+_TWIN = "_padded_twin"
 
 
 def keep_twin(rig, twin) -> None:
-    """Keep `twin` as `rig`'s until `rig` is collected."""
-    _TWINS[id(rig)] = twin
-    weakref.finalize(rig, _TWINS.pop, id(rig), None)
+    """Keep `twin` on `rig`, for as long as `rig` lives."""
+    object.__setattr__(rig, _TWIN, twin)  # a frozen module: set past its __setattr__
 
 
 def padded_twin(rig):
-    """The twin `Rig.build(..., ladder=...)` kept for this very rig object, or None
-    (for any other, a rig rebuilt by a transformation included)."""
-    return _TWINS.get(id(rig))
+    """The twin `Rig.build(..., ladder=...)` kept on this very rig object, or None (for
+    any other, a rig rebuilt by a transformation included)."""
+    return vars(rig).get(_TWIN)
 
 
 def cut_factor(padded: DenseFactor, twin_energy, energy) -> DenseFactor:

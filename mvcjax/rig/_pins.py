@@ -20,7 +20,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from ..core import to_device
+from ..core import is_whole_number, to_device
 from ..geometry import barycentric_coordinates, locate_points, points_to_local
 from ._handles import as_point
 from ._programs import note_size
@@ -45,7 +45,7 @@ def with_spare_pins(rig, count: Any):
     """`rig` with `count` more target rows, each a point handle that pins nothing until
     placed (`with_pin`). The targets then have `count` more rows (any finite values
     while a row is inactive)."""
-    if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
+    if not is_whole_number(count) or count < 1:
         raise ValueError(f"with_spare_pins(count={count!r}): count is how many spare pins to "
                          "add, a whole number >= 1.")
     count = int(count)
@@ -82,7 +82,7 @@ def with_spare_pins(rig, count: Any):
 
 def _check_row(rig, row: Any) -> int:
     t = rig.handles.count
-    if isinstance(row, bool) or not isinstance(row, (int, np.integer)) or not -t <= row < t:
+    if not is_whole_number(row) or not -t <= row < t:
         raise ValueError(f"row={row!r}: a pin is a row of the targets, a whole number from 0 to "
                          f"{t - 1} (this rig has {t} target rows).")
     return int(row) % t

@@ -16,6 +16,7 @@ from ..core import (
     as_points,
     check_targets,
     finite_when_traced,
+    is_real_number,
     kind_of,
     to_device,
     whole_number,
@@ -212,7 +213,7 @@ def _check_dtype(dtype):
 def _length(value, name: str) -> float | None:
     if value is None:
         return None
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+    if not is_real_number(value):
         raise TypeError(f"{name} must be a length (a positive number), got {value!r}.")
     if not np.isfinite(value) or value <= 0:
         raise ValueError(f"{name} must be a positive length (finite), got {value}.")
@@ -369,9 +370,9 @@ class Rig(JittableModule):
                 pinned points are), `mvcjax.FullSolve()` (the shape mesh itself) or
                 `mvcjax.GivenControl(vertices, faces)` (a mesh of your own).
             skinning: how the shape mesh follows the control mesh:
-                `mvcjax.BlendedMVCSkinning()` (default: continuous, and the smoothest),
-                `mvcjax.MVCSkinning()` (the paper's eq. 1, which jumps across control
-                edges) or `mvcjax.BarycentricSkinning()` (the paper's "control mesh
+                `mvcjax.advanced.BlendedMVCSkinning()` (default: continuous, and the smoothest),
+                `mvcjax.advanced.MVCSkinning()` (the paper's eq. 1, which jumps across control
+                edges) or `mvcjax.advanced.BarycentricSkinning()` (the paper's "control mesh
                 only").
                 Ignored with `FullSolve()` (the shape mesh carries itself).
             factor: the global step of the fixed-G iteration: `mvcjax.advanced.DenseG()` (the
@@ -480,9 +481,11 @@ class Rig(JittableModule):
     # ---- using the rig --------------------------------------------------------------
 
     @property
-    def handle_positions(self) -> Float[Array, "h 2"]:
+    def handle_positions(self) -> Float[Array, "*rigs h 2"]:
         """The targets at rest (a row per point handle, two per bone): targets equal to
-        these give back the rest shape."""
+        these give back the rest shape. A stack's are `(rigs, h, 2)`, a rig's each."""
+        if self.stacked is not None:
+            return jax.vmap(lambda rig: rig.handle_positions)(self)
         return self.frame.to_world(self.handles.rest)
 
     @property
@@ -645,11 +648,11 @@ class Rig(JittableModule):
 
         Args:
             targets: `(h, 2)` where each handle should go.
-            solver: a solver. The default, `FixedG(iterations=100)` from the turned
-                start, comes near the minimum on poses that turn limbs far; the
-                paper's method is `FixedG()` (15 iterations) with `init="rest"`.
-                `mvcjax.FoldFree()` never folds the control mesh, and
-                `mvcjax.GaussNewton()` solves to a tolerance.
+            solver: a solver. The default, `FixedG(iterations=30)` from the turned
+                start, comes near the minimum of the default energy on poses that turn
+                limbs far; the paper's method is `FixedG()` (15 iterations) with
+                `init="rest"` on `Weights.paper()`. `mvcjax.FoldFree()` never folds,
+                and `mvcjax.GaussNewton()` solves to a tolerance.
             init: the start, see `Rig.start` (default `"turned"`).
             return_info: also return a `SolveInfo` (converged, iterations, energy,
                 inverted control triangles, the largest handle miss).

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from ..core import is_real_number, is_whole_number
 from ..energy import AbstractFactor, Energy
 from ..geometry import Skinning
 
@@ -22,9 +23,10 @@ class SolveInfo(eqx.Module):
             did not is reported as not converged, not hidden).
         iterations: the number of steps taken.
         energy: the energy (6) at the returned control vertices.
-        inverted: how many control triangles the pose turned inside out (0 for a pose
-            without folds; `FoldFree` keeps it at 0). The shape mesh follows the
-            control mesh, so a fold here is a fold in the picture.
+        inverted: how many control triangles the pose turned inside out (`FoldFree`
+            keeps it at 0). The picture is the shape mesh, which can fold where no
+            control triangle does and stay unfolded where one does:
+            `mvcjax.flipped_triangles` counts its folds.
         handle_miss: the largest distance from a pinned point to its target, in the
             user's units: how far the pose is from what the handles ask (a `FoldFree`
             pose that would have to fold to reach them stops short, and this says by
@@ -150,7 +152,7 @@ def check_count(solver: eqx.Module, name: str, minimum: int = 1) -> None:
     or a float) of at least `minimum`: TypeError for the type, ValueError for the value."""
     value = getattr(solver, name)
     where = f"{type(solver).__name__}({name}={value!r})"
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+    if not is_whole_number(value):
         whole = isinstance(value, float) and value.is_integer() and value >= minimum
         raise TypeError(f"{where}: a whole number (int) >= {minimum} is needed, got "
                         f"{type(value).__name__}; write e.g. "
@@ -167,7 +169,7 @@ def check_tolerance(solver: eqx.Module, name: str, default: str = "") -> None:
         return
     where = f"{type(solver).__name__}({name}={value!r})"
     fix = f" (or None for the default {default})" if default else ""
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+    if not is_real_number(value):
         raise TypeError(f"{where}: a tolerance must be a finite number >= 0{fix}, got "
                         f"{type(value).__name__}.")
     if not np.isfinite(value) or value < 0:
@@ -183,7 +185,7 @@ def converged_and_finite(converged: Array, vertices: Array, energy: Array) -> Ar
 def check_steps(solver: AbstractSolver, steps: Any) -> int:
     """`steps` for `fixed_steps`, refused unless a whole number >= 1."""
     where = f"{type(solver).__name__}.fixed_steps({steps!r})"
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)):
+    if not is_whole_number(steps):
         raise TypeError(f"{where}: the number of steps must be a whole number (int) >= 1, got "
                         f"{type(steps).__name__}.")
     if steps < 1:
