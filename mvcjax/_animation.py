@@ -14,7 +14,15 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Float
 
 from .character import Character
-from .core import as_array, as_devices, kind_of, to_device, whole_number
+from .core import (
+    NOT_FINITE_TARGETS,
+    as_array,
+    as_devices,
+    finite_when_traced,
+    kind_of,
+    to_device,
+    whole_number,
+)
 from .geometry import skin_frames_into
 from .rig import Rig, padded_twin, solve_in_frame
 from .solvers import DEFAULT_SOLVER, AbstractSolver, check_solver
@@ -41,17 +49,31 @@ def _solve_chunked(rig: Rig, targets, solver: AbstractSolver, chunk: int):
     return control.reshape(-1, *control.shape[2:])[:frames]
 
 
-def _deform_chunked(rig: Rig, targets, solver: AbstractSolver, chunk: int):
+def _solve_in_sequence(rig: Rig, targets, solver: AbstractSolver):
+    """Control vertices in the rig's frame, frame after frame, each solved from the
+    pose before it (the first from its turned start)."""
+    def step(previous, t):
+        local = solve_in_frame(rig, t, solver, rig.frame.to_world(previous))[0]
+        return local, local
+
+    first = rig.frame.to_local(rig.start(targets[0]))
+    return jax.lax.scan(step, first, targets)[1]
+
+
+def _deform_chunked(rig: Rig, targets, solver: AbstractSolver, chunk: int,
+                    warm_start: bool = False):
     # The skinning maps over all frames at once (its rule takes them a few at a time),
     # writing the result in place: skinning inside each chunk would copy every chunk's
     # result once more.
-    control = _solve_chunked(rig, targets, solver, chunk)
+    control = (_solve_in_sequence(rig, targets, solver) if warm_start
+               else _solve_chunked(rig, targets, solver, chunk))
     return jax.vmap(lambda v: rig.skinning(v, rig.frame))(control)
 
 
 @eqx.filter_jit
-def _deform_one_device(rig: Rig, targets, solver: AbstractSolver, chunk: int):
-    return _deform_chunked(rig, targets, solver, chunk)
+def _deform_one_device(rig: Rig, targets, solver: AbstractSolver, chunk: int,
+                       warm_start: bool):
+    return _deform_chunked(rig, targets, solver, chunk, warm_start)
 
 
 @functools.partial(jax.jit, static_argnames=("static", "chunk"), donate_argnames="out",
@@ -110,6 +132,20 @@ def _deform_character(character: Character, targets, solver: AbstractSolver, chu
     return tuple(out)
 
 
+def _check_placement(devices, out, character: bool, warm_start) -> list:
+    """The devices to pose on (the default device for None), where `deform_frames` can
+    pose this way: a Character, or frames solved in order, on one device into a new
+    array."""
+    if character and (out is not None or devices is not None):
+        raise ValueError("deform_frames poses a Character on one device and into new "
+                         "arrays: leave out out= and devices=.")
+    if warm_start and (character or out is not None or (devices and len(devices) > 1)):
+        raise ValueError("warm_start=True solves a rig's frames in order on one device, into "
+                         "a new array: leave out out= and devices= (and pose a Character "
+                         "without it).")
+    return [jax.local_devices()[0]] if devices is None else devices
+
+
 def _refuse_bad_host_frames(targets, h: int) -> None:
     """Refuse concrete targets that are not real numbers, or whose frames hold NaN or
     infinite values (named by index); traced targets cannot be checked."""
@@ -138,6 +174,8 @@ def _checked_frames(targets, h: int):
             f"targets must have shape (frames, {h}, 2), one (x, y) per handle and frame, got "
             f"{targets.shape}; for a single frame use rig.deform(targets)."
         )
+    if isinstance(targets, jax.core.Tracer):
+        return finite_when_traced(targets, NOT_FINITE_TARGETS)
     return targets
 
 
@@ -161,6 +199,7 @@ def deform_frames(
     chunk: Any = 1024,
     devices: Any = None,
     out: Any = None,
+    warm_start: bool = False,
 ) -> Float[Array, "frames n 2"] | tuple[Array, ...]:
     """Deformed shape-mesh vertices for every frame of `targets`.
 
@@ -188,13 +227,17 @@ def deform_frames(
         devices: the devices to shard the frames over (default: one, the default device;
             `jax.local_devices()` for all of this process's). Frames are padded to a
             multiple of their count.
+        warm_start: solve the frames in order, each from the pose before it (the first
+            from its turned start), one after another instead of `chunk` at a time: for
+            an animation's frames with `FoldFree`, whose every start is then a pose
+            without folds near the answer. A rig on one device, without `out`.
 
     Returns:
         `(frames, n, 2)` deformed shape-mesh vertices.
 
     Targets given as arrays are checked first: frames with NaN or infinite targets are
-    refused by index. Under `jax.jit` they cannot be (the values are not known yet), and
-    such a frame comes back non-finite while the others are unaffected.
+    refused by index. Under `jax.jit` the values are not known yet: they are checked when
+    the program runs, which then raises the same error without the index.
     """
     character = isinstance(rig, Character)
     h = rig.handles.count
@@ -204,21 +247,18 @@ def deform_frames(
     chunk = whole_number(chunk, "chunk", what=" of frames")
     if targets.shape[0] == 0:
         raise ValueError("targets hold no frames (shape (0, h, 2)); give at least one frame.")
-    devices = as_devices(devices)
+    devices = _check_placement(as_devices(devices), out, character, warm_start)
     targets = targets.astype(dtype)
     frames = targets.shape[0]
     if character:
-        if out is not None or devices is not None:
-            raise ValueError("deform_frames poses a Character on one device and into new "
-                             "arrays: leave out out= and devices=.")
         return _deform_character(rig, targets, solver, min(chunk, frames))
-    devices = [jax.local_devices()[0]] if devices is None else devices
     twin = padded_twin(rig)
     if (out is None and len(devices) == 1 and twin is not None
             and not isinstance(targets, jax.core.Tracer)):
         # A laddered rig poses as its twin, whose program rigs on its rungs share; its
         # own rows are cut on the host (an eager slice compiles a program per size).
-        posed = deform_frames(twin, targets, solver, chunk=chunk, devices=devices)
+        posed = deform_frames(twin, targets, solver, chunk=chunk, devices=devices,
+                              warm_start=warm_start)
         return to_device(np.asarray(posed)[:, :rig.shape_mesh.vertices.shape[0]], posed.dtype)
     if out is not None:
         if len(devices) != 1:
@@ -228,5 +268,5 @@ def deform_frames(
         arrays, static = eqx.partition((rig, solver), eqx.is_array)
         return _deform_into(arrays, targets, out, static=static, chunk=min(chunk, frames))
     if len(devices) == 1:
-        return _deform_one_device(rig, targets, solver, min(chunk, frames))
+        return _deform_one_device(rig, targets, solver, min(chunk, frames), bool(warm_start))
     return _deform_over_devices(rig, targets, solver, chunk, devices)

@@ -53,12 +53,13 @@ _HINT_FONT_POINTS = 8.0
 
 
 def _pose(rig: Rig | Character, renderer: Renderer | None, solver: AbstractSolver,
-          rest_sign: np.ndarray, targets: Float[Array, "h 2"]):
-    """The control and shape meshes for these targets; with a renderer, the picture as
-    `uint8` RGBA (a quarter of the bytes to hand to matplotlib, which draws those fastest);
-    which shape triangles are flipped (their signed area's sign is not `rest_sign`, as
-    `flipped_triangles` counts them), and how many."""
-    control = rig.solve(targets, solver)
+          rest_sign: np.ndarray, targets: Float[Array, "h 2"], init: Any = "turned"):
+    """The control and shape meshes for these targets, solved from `init`; with a
+    renderer, the picture as `uint8` RGBA (a quarter of the bytes to hand to matplotlib,
+    which draws those fastest); which shape triangles are flipped (their signed area's
+    sign is not `rest_sign`, as `flipped_triangles` counts them), and how many."""
+    control = rig.solve(targets, solver) if isinstance(init, str) else rig.solve(
+        targets, solver, init=init)
     shape = rig.skin(control)
     if isinstance(rig, Character):  # its parts, drawn as one mesh
         control, shape = jnp.concatenate(control), jnp.concatenate(shape)
@@ -219,7 +220,12 @@ class Posing:
         # The renderer and solver are constants of the session's one program; the rig is
         # an argument, so that a pin placed or taken out (new numbers, the same shapes)
         # runs the same program.
-        self._pose = jax.jit(lambda r, t: _pose(r, renderer, solver, rest_sign, t))
+        self._pose = jax.jit(lambda r, t, *init: _pose(r, renderer, solver, rest_sign, t,
+                                                      *init))
+        # `FoldFree` starts each drag step from the pose before it (the rest mesh at
+        # first): a start without folds near the answer, where the turned start of a
+        # pose that folds would send it back to the rigid one.
+        self._warm = isinstance(solver, FoldFree) and isinstance(rig, Rig)
         self._dtype = np.dtype(rig.handles.rest.dtype)
         self._pick_radius = float(pick_radius)
         self._bones = np.asarray(rig.handles.bones, np.int64).reshape(-1, 2)
@@ -229,6 +235,7 @@ class Posing:
         self._control_edges = edges(np.asarray(rig.control_mesh.faces))
 
         self._all = np.asarray(self._rig.handle_positions, np.float64).copy()
+        self._control_vertices = None
         self.updates, self.update_seconds, self.pin_seconds = 0, [], []
         self._dragged: int | None = None
         # The targets and the rig before each move, for undo.
@@ -564,9 +571,18 @@ class Posing:
             ax.add_artist(self._fold_hint)
         self._hinted_folds, self.hint = 0, ""
 
+    def _start(self) -> tuple:
+        """The solve's start, as `_pose`'s trailing arguments: none for the turned
+        start, or the control vertices of the pose before (at first, the rest)."""
+        if not self._warm:
+            return ()
+        last = self._control_vertices
+        return (self._rig.control_mesh.vertices if last is None else last,)
+
     def _solve(self) -> None:
         pose = jax.block_until_ready(
-            self._pose(self._rig, jnp.asarray(self._all.astype(self._dtype))))
+            self._pose(self._rig, jnp.asarray(self._all.astype(self._dtype)),
+                       *self._start()))
         self._control_vertices, self._shape, self._picture, self._flipped, folds = pose
         self.folds = int(folds)
 

@@ -386,3 +386,17 @@ def test_a_posed_character_exports_as_one_mesh_and_its_outlines(character, posed
     assert sum(line.startswith("v ") for line in lines) == mesh.vertices.shape[0]
     assert sum(line.startswith("f ") for line in lines) == mesh.faces.shape[0]
     assert (tmp_path / "pose.svg").read_text().count("<path") >= 1
+
+
+def test_an_eager_deform_is_one_compiled_program(character, wave, caplog):
+    # Outside jit, solving and skinning every part runs one program, compiled on the
+    # first call and reused by the next with new targets, as a rig's deform does.
+    first = character.deform(wave[3])
+    with jax.log_compiles(True), caplog.at_level("WARNING", logger="jax"):
+        again = [character.deform(wave[k]) for k in (4, 5)]
+    assert not [m for m in caplog.messages if "Finished XLA compilation" in m]
+    for parts in [first, *again]:
+        assert all(bool(jnp.all(jnp.isfinite(p))) for p in parts)
+    expected = jax.jit(character.deform)(wave[5])
+    for part, want in zip(again[-1], expected):
+        np.testing.assert_allclose(part, want, rtol=0, atol=1e-3)

@@ -453,6 +453,24 @@ def test_show_folds_false_draws_no_overlay_and_still_counts(folding_rig):
     assert np.abs(canvas_pixels(hidden) - blitted).max() <= 2
 
 
+def test_a_fold_free_drag_starts_each_step_from_the_pose_before(horse_rig32):
+    posing = mvcjax.interact(horse_rig32, solver=mvcjax.FoldFree())
+    rest = np.asarray(horse_rig32.handle_positions)
+    previous = np.asarray(posing.control_vertices)
+    for step in (1, 2, 3):
+        targets = rest.copy()
+        targets[BACK] += 0.15 * step * FOLDING
+        posing.set_targets(targets)
+        expected = horse_rig32.solve(targets, mvcjax.FoldFree(), init=previous)
+        # Both stop at FoldFree's float32 tolerance, compiled apart.
+        np.testing.assert_allclose(posing.control_vertices, expected, rtol=0,
+                                   atol=2e-4 * float(horse_rig32.frame.scale))
+        assert mvcjax.flipped_triangles(horse_rig32.control_mesh.vertices,
+                                        posing.control_vertices,
+                                        horse_rig32.control_mesh.faces) == 0
+        previous = np.asarray(posing.control_vertices)
+
+
 def test_the_fold_free_solver_poses_without_a_suggestion(horse_rig32):
     targets = np.asarray(horse_rig32.handle_positions).copy()
     targets[BACK] += 0.4 * FOLDING  # the default solver folds the control mesh here

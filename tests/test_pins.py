@@ -125,6 +125,25 @@ def test_placing_and_taking_out_pins_compiles_nothing(horse_rig32):
     assert pose._cache_size() == 1
 
 
+def test_the_guides_spelling_poses_every_pinned_rig_with_one_program(horse_rig32, caplog):
+    # docs/guide.md: `jax.jit(mvcjax.Rig.deform)`, the rig an argument, compiles once for
+    # every rig `with_pin` returns; `jax.jit(rig.deform)`, the rig's arrays constants,
+    # compiles for each new rig.
+    rig = horse_rig32.with_spare_pins(SPARE)
+    vertices = np.asarray(rig.shape_mesh.vertices)
+    targets = jnp.asarray(rig.handle_positions)
+    rigs = [rig.with_pin(5, vertices[inner_point(rig, seed)]) for seed in range(3)]
+    frame = jax.jit(mvcjax.Rig.deform)
+    for r in [rig, *rigs]:
+        frame(r, targets).block_until_ready()
+    assert frame._cache_size() == 1
+    with jax.log_compiles(True), caplog.at_level("WARNING", logger="jax"):
+        for r in rigs:
+            jax.jit(r.deform)(targets).block_until_ready()
+    compiled = [m for m in caplog.messages if "Finished XLA compilation of jit(deform)" in m]
+    assert len(compiled) == len(rigs), caplog.messages
+
+
 def test_gradients_flow_through_a_placed_pin(horse_rig32):
     rig = horse_rig32.with_spare_pins(1)
     vertex = inner_point(rig, seed=2)

@@ -10,7 +10,7 @@ fails, naming the page and the table, where a page differs from what its results
     python tools/tables.py           # rewrite every table from the results
     python tools/tables.py --check   # exit 1 if a table is stale, naming it
 
-The pages and their tables: `docs/benchmarks.md` (deform, solvers, frames, throughput,
+The pages and their tables: `docs/benchmarks.md` (deform, solvers, animation, frames, throughput,
 many rigs, stack, interact, render), `docs/paper.md` (table1), `docs/folds.md` (folds, written by
 `folds.format_tables` as `benchmarks/folds.py --table ... --docs ...` writes it) and
 `docs/robustness.md` (robustness, once its results file exists) and `docs/guide.md`
@@ -29,6 +29,7 @@ from pathlib import Path
 # The benchmarks write the results and know their tables' form.
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
 
+import animation
 import dataset
 import folds
 import jit_method
@@ -401,6 +402,12 @@ def vmap_rules_table(data: dict, source: str) -> str:
     return _measured_on(data, source) + "\n\n" + vmap_rules.format_table(data)
 
 
+def animation_table(data: dict, source: str) -> str:
+    """`benchmarks/animation.py`: an animation's frames from their turned starts, or each
+    from the pose before."""
+    return _measured_on(data, source) + "\n\n" + animation.format_table(data)
+
+
 def jit_method_table(data: dict, source: str) -> str:
     """`benchmarks/jit_method.py`: the ways to jit a rig's frame."""
     return _measured_on(data, source) + "\n\n" + jit_method.format_table(data)
@@ -476,6 +483,7 @@ TABLES = [
           lambda data, _: folds.readme_table(data)),
     Table(BENCHMARKS, "deform", _results("deform"), deform_table),
     Table(BENCHMARKS, "solvers", _results("solvers"), solvers_table),
+    Table(BENCHMARKS, "animation", _results("animation"), animation_table),
     Table(BENCHMARKS, "frames", _results("frames"), frames_table),
     Table(BENCHMARKS, "throughput-frame", _results("throughput"), throughput_frame_table),
     Table(BENCHMARKS, "throughput-batch", _results("throughput"), throughput_batch_table),

@@ -378,8 +378,8 @@ class Character(JittableModule):
         """Solve, then skin: a tuple of every part's deformed shape-mesh vertices
         `(n_i, 2)` in the layers' order (and a `SolveInfo` per part); the arguments are
         those of `solve`."""
-        control, info = self.solve(targets, solver, return_info=True)
-        vertices = self.skin(control)
+        check_solver(solver)
+        vertices, info = _deform_parts(self, self._check_targets(targets), solver, "turned")
         return (vertices, info) if return_info else vertices
 
     def renderer(self, layers: Any, **options: Any) -> CharacterRenderer:
@@ -418,6 +418,14 @@ def _solve_parts(character: Character, targets, solver: AbstractSolver, init):
         local, info[i] = solve_in_frame(part, own, solver, init)
         control[i] = part.frame.to_world(local)
     return tuple(control), tuple(info)
+
+
+@compiled_when_eager
+def _deform_parts(character: Character, targets, solver: AbstractSolver, init):
+    """Every part solved, parents first, and skinned: one compiled program when called
+    outside a transformation, as a rig's `deform` is."""
+    control, info = _solve_parts(character, targets, solver, init)
+    return character.skin(control), info
 
 
 def _check_order(order, count: int, names) -> Any:

@@ -7,6 +7,7 @@ from ._batching import (
     with_batching_rule as with_batching_rule,
 )
 from ._checks import (
+    NOT_FINITE_TARGETS as NOT_FINITE_TARGETS,
     as_array as as_array,
     as_devices as as_devices,
     as_points as as_points,

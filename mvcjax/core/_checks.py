@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-_NOT_FINITE = "targets contain NaN or infinite values; give finite (x, y) targets."
+NOT_FINITE_TARGETS = "targets contain NaN or infinite values; give finite (x, y) targets."
 _KINDS = {"c": "complex numbers", "b": "booleans", "U": "strings", "S": "bytes",
           "O": "Python objects", "M": "dates", "m": "time spans", "V": "records"}
 
@@ -108,7 +108,7 @@ def check_targets(targets, h: int, dtype) -> Array:
             raise TypeError(f"targets must be real (x, y) numbers, got {kind_of(host)}; "
                             f"pass a float array of shape ({h}, 2).")
         if host.shape == (h, 2) and not np.all(np.isfinite(host)):
-            raise ValueError(_NOT_FINITE)
+            raise ValueError(NOT_FINITE_TARGETS)
         with np.errstate(over="ignore"):
             representable = np.all(np.isfinite(host.astype(dtype)))
         if host.shape == (h, 2) and not representable:
@@ -127,4 +127,4 @@ def check_targets(targets, h: int, dtype) -> Array:
             "for several frames, use jax.vmap over a leading axis or mvcjax.deform_frames."
         )
     targets = targets.astype(dtype)
-    return finite_when_traced(targets, _NOT_FINITE) if traced else targets
+    return finite_when_traced(targets, NOT_FINITE_TARGETS) if traced else targets

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 import numbers
 import types
+import weakref
 
 import equinox as eqx
 import jax
@@ -118,22 +119,22 @@ def twin_parts(parts: dict, ladder: SizeLadder):
     return factor, energy, finish
 
 
-# Where a rig keeps its twin: an attribute of the rig object itself, not a dataclass field,
-# so not a pytree leaf. Equinox flattens a rig by its fields, so its pytree structure is a
-# plain rig's (stacks and `jax.tree.map` compare them), and a transformation, which
-# rebuilds a rig from its leaves, makes a rig without a twin; the twin goes with its rig.
-_TWIN = "_padded_twin"
+# Each laddered rig's twin, by the rig's id, for as long as the rig lives. Beside the
+# rig, not in it: an attribute of its own would change how equinox flattens it (and so
+# its pytree structure, which stacks and `jax.tree.map` compare with plain rigs').
+_TWINS: dict[int, object] = {}
 
 
 def keep_twin(rig, twin) -> None:
-    """Keep `twin` on `rig`, for as long as `rig` lives."""
-    object.__setattr__(rig, _TWIN, twin)  # a frozen module: set past its __setattr__
+    """Keep `twin` as `rig`'s until `rig` is collected."""
+    _TWINS[id(rig)] = twin
+    weakref.finalize(rig, _TWINS.pop, id(rig), None)
 
 
 def padded_twin(rig):
-    """The twin `Rig.build(..., ladder=...)` kept on this very rig object, or None (for
-    any other, a rig rebuilt by a transformation included)."""
-    return vars(rig).get(_TWIN)
+    """The twin `Rig.build(..., ladder=...)` kept for this very rig object, or None
+    (for any other, a rig rebuilt by a transformation included)."""
+    return _TWINS.get(id(rig))
 
 
 def cut_factor(padded: DenseFactor, twin_energy, energy) -> DenseFactor:
