@@ -58,7 +58,7 @@ def measure(count: int, laddered: bool) -> tuple[list[dict], dict]:
     """`count` stars built and posed one after another, plain or with a `SizeLadder`:
     rows of memory as they go by, and a summary of the times."""
     import mvcjax
-    from mvcjax import _programs
+    from mvcjax.rig import _programs
     from mvcjax.rig._ladder import padded_twin
 
     ladder = mvcjax.SizeLadder() if laddered else None

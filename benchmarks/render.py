@@ -140,9 +140,9 @@ def _draw_at(ref: str):
     source = subprocess.run(["git", "show", f"{ref}:mvcjax/rendering/_render.py"], check=True,
                             capture_output=True, text=True,
                             cwd=os.path.dirname(os.path.abspath(__file__))).stdout
-    name = "mvcjax._render_at_baseline"
+    name = "mvcjax.rendering._render_at_baseline"
     module = importlib.util.module_from_spec(importlib.util.spec_from_loader(name, None))
-    module.__package__ = mvcjax.__name__
+    module.__package__ = mvcjax.rendering.__name__  # its relative imports, as the module's
     sys.modules[name] = module  # dataclasses look their module up while it runs
     exec(compile(source, f"{ref}:mvcjax/rendering/_render.py", "exec"), module.__dict__)
     return module._draw

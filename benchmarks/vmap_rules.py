@@ -48,8 +48,10 @@ def _cases(rig, frames: int, picture_size: int) -> dict:
     import numpy as np
 
     import mvcjax
-    from mvcjax import _render, _skinning, datasets
+    from mvcjax import datasets
     from mvcjax.core._batching import with_batching_rule
+    from mvcjax.geometry import _skinning
+    from mvcjax.rendering import _render
 
     rest = np.asarray(rig.handle_positions)
     scale = np.random.default_rng(0).uniform(0.2, 1.0, size=(frames, 1, 1))
