@@ -7,6 +7,7 @@ import io
 import pathlib
 import re
 
+import jax.numpy as jnp
 import matplotlib
 import pytest
 
@@ -38,8 +39,9 @@ def printed_claims(code: str) -> list[str]:
     return claims
 
 
-def run_page(page: str, folder, monkeypatch) -> list[tuple[str, str]]:
-    """Run `page`'s blocks in order in `folder`; each block's claims and output."""
+def run_page(page: str, folder, monkeypatch) -> tuple[list[tuple[str, str]], dict]:
+    """Run `page`'s blocks in order in `folder`: each block's code and output, and the
+    page's namespace."""
     monkeypatch.chdir(folder)
     matplotlib.use("Agg")  # plt.show() returns at once, as in a script without a display
     namespace = {"__name__": "__docs__"}
@@ -49,13 +51,15 @@ def run_page(page: str, folder, monkeypatch) -> list[tuple[str, str]]:
         with contextlib.redirect_stdout(out):
             exec(compile(code, f"{page} python block {index}", "exec"), namespace)
         seen.append((code, out.getvalue()))
-    return seen
+    return seen, namespace
 
 
 @pytest.mark.parametrize("page", ["README.md", "docs/guide.md"])
 def test_the_page_runs_as_written(page, tmp_path, monkeypatch):
-    blocks = run_page(page, tmp_path, monkeypatch)
+    blocks, namespace = run_page(page, tmp_path, monkeypatch)
     assert blocks, f"{page} has no python block"
+    # Both pages pose in JAX's default float32: the deformed vertices are float32.
+    assert namespace["vertices"].dtype == jnp.float32
     for code, printed in blocks:
         lines = printed.splitlines()
         for claim in printed_claims(code):

@@ -4,21 +4,11 @@ paths, against float64 references."""
 import jax
 import jax.numpy as jnp
 import numpy as np
-from test_readme import readme_python_blocks
 
 import mvcjax
 from mvcjax import datasets
 
 from conftest import float64_on
-
-
-def test_the_readme_example_runs_in_float32(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    for index, code in enumerate(readme_python_blocks()):
-        scope = {"__name__": "__readme__"}
-        exec(compile(code, f"README.md python block {index}", "exec"), scope)
-        assert scope["vertices"].dtype == jnp.float32
-        assert np.all(np.isfinite(np.asarray(scope["vertices"])))
 
 
 def test_the_default_paths_give_float32_near_float64(horse_rig32):
