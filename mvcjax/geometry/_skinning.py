@@ -121,8 +121,8 @@ def as_skinning(skinning) -> AbstractSkinning:
         kind = skinning
     raise TypeError(
         "skinning must be a skinning object, mvcjax.advanced.BlendedMVCSkinning(), "
-        f"mvcjax.advanced.MVCSkinning() or mvcjax.advanced.BarycentricSkinning(), got {skinning!r}"
-        + (f"; write mvcjax.{kind.__name__}()." if kind else ".")
+        "mvcjax.advanced.MVCSkinning() or mvcjax.advanced.BarycentricSkinning(), got "
+        f"{skinning!r}" + (f"; write mvcjax.advanced.{kind.__name__}()." if kind else ".")
     )
 
 
