@@ -33,6 +33,7 @@ from jaxtyping import Array, Float
 
 from ._animation import deform_frames
 from .character import Character, CharacterRenderer
+from .core import is_real_number, is_whole_number
 from .export import write_animation
 from .geometry import barycentric_coordinates, boundary_loops, edges, locate_points, signed_areas
 from .rendering import Renderer, check_drawn_mesh, check_window, fit_window, in_window
@@ -146,18 +147,16 @@ def _check_posing_options(rig, solver, pick_radius, margin, ax, spare_pins) -> N
         raise TypeError(f"rig must be an mvcjax.Rig (mvcjax.Rig.build(shape, handles)) "
                         f"or an mvcjax.Character, got {type(rig).__name__}.")
     check_solver(solver)
-    if isinstance(pick_radius, bool) or not (isinstance(pick_radius, (int, float))
-                                            and pick_radius > 0):
+    if not (is_real_number(pick_radius) and pick_radius > 0):
         raise ValueError(f"pick_radius must be a positive number of screen pixels, got "
                          f"{pick_radius!r}.")
-    if isinstance(margin, bool) or not (isinstance(margin, (int, float)) and margin >= 0):
+    if not (is_real_number(margin) and margin >= 0):
         raise ValueError(f"margin must be a number >= 0 (a fraction of the shape's size), "
                          f"got {margin!r}.")
     if ax is not None and not hasattr(ax, "transData"):
         raise TypeError(f"ax must be matplotlib axes (e.g. plt.subplots()[1]), got "
                         f"{type(ax).__name__}.")
-    if isinstance(spare_pins, bool) or not (isinstance(spare_pins, (int, np.integer))
-                                            and spare_pins >= 0):
+    if not (is_whole_number(spare_pins) and spare_pins >= 0):
         raise ValueError(f"spare_pins must be a whole number >= 0 (how many pins a click "
                          f"can add), got {spare_pins!r}.")
 
@@ -367,7 +366,7 @@ class Posing:
                             for t, a in zip(self._recorded, active)])
         if fps is None:
             return targets, list(self._recorded_pins)
-        if isinstance(fps, bool) or not (isinstance(fps, (int, float)) and fps > 0):
+        if not (is_real_number(fps) and fps > 0):
             raise ValueError(f"fps must be a positive number of frames per second, got {fps!r}.")
         times = np.asarray(self._times) - self._times[0]
         count = max(1, int(np.floor(times[-1] * fps)) + 1)
