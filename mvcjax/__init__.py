@@ -53,14 +53,11 @@ __all__ = [
     "pixels_to_points", "points_to_pixels", "render",
 ]
 
-# Names that moved to `mvcjax.advanced`: asked for here, they say where they are now.
-_MOVED = ("BarycentricSkinning", "BlendedMVCSkinning", "MVCSkinning", "CharacterRenderer",
-          "FitResult", "SolveInfo", "Layer", "core_depth", "checkerboard", "smoothness",
-          "difference")
 
 
 def __getattr__(name: str):
-    if name in _MOVED:
-        raise AttributeError(f"mvcjax.{name} is mvcjax.advanced.{name} now: write "
+    """A name of `mvcjax.advanced` asked for here says where it is."""
+    if not name.startswith("_") and hasattr(advanced, name):
+        raise AttributeError(f"mvcjax.{name} is in mvcjax.advanced: write "
                              f"mvcjax.advanced.{name}.")
     raise AttributeError(f"module 'mvcjax' has no attribute {name!r}")

@@ -34,7 +34,8 @@ def test_every_public_name_is_in_the_api_reference():
     assert sorted(set(names) - documented) == []
 
 
-@pytest.mark.parametrize("name", ["MVCSkinning", "SolveInfo", "FitResult", "Layer"])
+@pytest.mark.parametrize("name", ["MVCSkinning", "SolveInfo", "FitResult", "Layer",
+                                  "JaxoptGaussNewton", "SparseLU", "Energy"])
 def test_a_name_moved_to_advanced_says_where_it_is(name):
     with pytest.raises(AttributeError, match=rf"mvcjax.advanced.{name}"):
         getattr(mvcjax, name)

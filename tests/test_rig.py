@@ -265,8 +265,10 @@ def test_options_as_objects_build_what_the_old_spellings_do(horse, horse_rig):
 def test_older_spellings_are_refused_with_the_object_to_write(horse, option, spelling, fix):
     with pytest.raises(TypeError, match=rf"{option} must be .*; write {re.escape(fix)}"):
         mvcjax.Rig.build(horse, datasets.horse_handles(), **{option: spelling})
-    with pytest.raises(TypeError, match="control_spacing"):
-        mvcjax.Rig.build(horse, datasets.horse_handles(), control_spacing=40.0)
+    for removed in ("control_spacing", "margin"):
+        with pytest.raises(TypeError, match=rf"{removed}= was removed; write "
+                                            r"control=mvcjax\.PaperControl\(spacing="):
+            mvcjax.Rig.build(horse, datasets.horse_handles(), **{removed: 40.0})
 
 
 def test_bad_handles_and_targets_are_explained(horse, horse_rig32):

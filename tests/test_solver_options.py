@@ -59,6 +59,26 @@ def test_fixed_g_options_are_checked(kwargs, error, message):
         mvcjax.FixedG(**kwargs)
 
 
+@pytest.mark.parametrize("solver", [*LEAST_SQUARES, mvcjax.FoldFree], ids=lambda s: s.__name__)
+@pytest.mark.parametrize("key", ["steps", "rtol", "deflate"])
+def test_removed_cg_keywords_say_what_to_write(solver, key):
+    fix = rf"write linear_solver=mvcjax\.advanced\.StructuredCG\({key}="
+    removed = rf"{solver.__name__}\(\.\.\.\): cg_{key}= was removed"
+    with pytest.raises(TypeError, match=f"{removed}; {fix}"):
+        solver(**{f"cg_{key}": 1})
+
+
+@pytest.mark.parametrize("spelling, fix", [
+    ("JaxoptGaussNewton", "mvcjax.advanced.JaxoptGaussNewton()"),
+    (mvcjax.advanced.JaxoptLevenbergMarquardt, "mvcjax.advanced.JaxoptLevenbergMarquardt()"),
+    ("FoldFree", "mvcjax.FoldFree()"),
+    ("newton", "mvcjax.GaussNewton()"),
+])
+def test_a_solver_named_as_a_string_or_class_is_answered_where_it_lives(stick, spelling, fix):
+    with pytest.raises(TypeError, match=rf"write {re.escape(fix)}"):
+        stick.deform(stick.handle_positions, solver=spelling)
+
+
 @pytest.mark.parametrize("solver", [mvcjax.advanced.JaxoptGaussNewton,
                                     mvcjax.advanced.JaxoptLevenbergMarquardt])
 def test_jaxopt_options_are_checked(solver):

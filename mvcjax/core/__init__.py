@@ -16,6 +16,8 @@ from ._checks import (
     is_real_number as is_real_number,
     is_whole_number as is_whole_number,
     kind_of as kind_of,
+    refuse_removed as refuse_removed,
+    refusing_removed as refusing_removed,
     whole_number as whole_number,
 )
 from ._module import JittableModule as JittableModule

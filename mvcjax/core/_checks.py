@@ -3,6 +3,7 @@ what was wrong and the fix."""
 
 from __future__ import annotations
 
+import functools
 import numbers
 
 import equinox as eqx
@@ -81,6 +82,24 @@ def whole_number(value, name: str, minimum: int = 1, what: str = "") -> int:
     if value < minimum:
         raise ValueError(f"{name} must be a whole number{what} >= {minimum}, got {value!r}.")
     return int(value)
+
+
+def refuse_removed(where: str, keywords, removed: dict[str, str]) -> None:
+    """A TypeError if `keywords` holds one that `removed` maps to what to write now."""
+    for key in keywords:
+        if key in removed:
+            raise TypeError(f"{where}: {key}= was removed; write {removed[key]}.")
+
+
+def refusing_removed(**removed: str):
+    """Decorator: calls with a keyword of `removed` raise `refuse_removed`'s error."""
+    def wrap(function):
+        @functools.wraps(function)
+        def checked(*args, **kwargs):
+            refuse_removed(f"{function.__qualname__}(...)", kwargs, removed)
+            return function(*args, **kwargs)
+        return checked
+    return wrap
 
 
 def as_devices(devices) -> list | None:

@@ -18,6 +18,7 @@ from ..core import (
     finite_when_traced,
     is_real_number,
     kind_of,
+    refusing_removed,
     to_device,
     whole_number,
 )
@@ -336,6 +337,8 @@ class Rig(JittableModule):
     turns: Float[Array, "c r"]
 
     @classmethod
+    @refusing_removed(**{key: "control=mvcjax.PaperControl(spacing=..., margin=...)"
+                         for key in ("control_spacing", "margin")})
     def build(
         cls,
         shape: Any,

@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import abc
-from typing import Any
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ..core import is_real_number, is_whole_number
+from ..core import is_real_number, is_whole_number, refuse_removed
 from ..energy import AbstractFactor, Energy
 from ..geometry import Skinning
 
@@ -70,12 +70,27 @@ class SkinnedMesh(eqx.Module):
         return jnp.einsum("nk,dnk->dn", self.skinning.weights, y[:, self.skinning.indices])
 
 
+# The structured CG's options, once keywords of the least-squares solvers and FoldFree.
+CG_KEYWORDS_REMOVED = {
+    f"cg_{key}": f"linear_solver=mvcjax.advanced.StructuredCG({key}=...)"
+    for key in ("steps", "rtol", "deflate")}
+
+
 class AbstractSolver(eqx.Module):
     """A solver of the energy (6): a frozen configuration with one `solve` method.
 
     Its fields are static configuration: changing one compiles anew, while new targets
     or weights never do.
     """
+
+    # Keywords the solver no longer takes, each with what to write now.
+    _REMOVED: ClassVar[dict[str, str]] = {}
+    # Where users find the solver.
+    _MODULE: ClassVar[str] = "mvcjax"
+
+    def __new__(cls, *args, **kwargs):
+        refuse_removed(f"{cls.__name__}(...)", kwargs, cls._REMOVED)
+        return super().__new__(cls)
 
     @abc.abstractmethod
     def solve(
@@ -193,17 +208,28 @@ def check_steps(solver: AbstractSolver, steps: Any) -> int:
     return int(steps)
 
 
+def _solver_classes(base: type = AbstractSolver) -> dict[str, type]:
+    """The public solver classes derived from `base`, by name."""
+    found = {}
+    for cls in base.__subclasses__():
+        found |= _solver_classes(cls)
+        if not cls.__name__.startswith("_"):
+            found[cls.__name__] = cls
+    return found
+
+
 def check_solver(solver, name: str = "solver"):
     """`solver` itself if it is an mvcjax solver object; otherwise a TypeError with the
     spelling that works (a solver's name as a string is a common slip)."""
     if isinstance(solver, AbstractSolver):
         return solver
     if isinstance(solver, str):
-        fix = f"mvcjax.{solver}()" if solver.isidentifier() else "mvcjax.GaussNewton()"
+        found = _solver_classes().get(solver)
+        fix = f"{found._MODULE}.{solver}()" if found else "mvcjax.GaussNewton()"
         raise TypeError(f"{name} must be an mvcjax solver object, not the string {solver!r}; "
                         f"write {fix}.")
     if isinstance(solver, type) and issubclass(solver, AbstractSolver):
         raise TypeError(f"{name} must be an mvcjax solver object, got the class "
-                        f"{solver.__name__}; write mvcjax.{solver.__name__}().")
+                        f"{solver.__name__}; write {solver._MODULE}.{solver.__name__}().")
     raise TypeError(f"{name} must be an mvcjax solver such as mvcjax.FixedG() or "
                     f"mvcjax.GaussNewton(), got {type(solver).__name__}.")

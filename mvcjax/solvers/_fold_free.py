@@ -13,6 +13,7 @@ from jaxtyping import Array, Float, Int
 from ..energy import rigid_start
 from ..geometry import area_along, first_flat, signed_areas
 from ._base import (
+    CG_KEYWORDS_REMOVED,
     AbstractSolver,
     SkinnedMesh,
     SolveInfo,
@@ -317,6 +318,8 @@ class FoldFree(AbstractSolver):
     (0, 1], tolerances other than None or a finite number >= 0, `max_steps` or
     a `linear_solver` other than a `StructuredCG`.
     """
+
+    _REMOVED = CG_KEYWORDS_REMOVED
 
     barrier: float = eqx.field(default=1.0, static=True, converter=python_scalar)
     threshold: float = eqx.field(default=0.25, static=True, converter=python_scalar)

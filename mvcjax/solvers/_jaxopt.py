@@ -44,6 +44,8 @@ class _JaxoptLeastSquares(AbstractSolver):
     number >= 1.
     """
 
+    _MODULE = "mvcjax.advanced"
+
     tol: float | None = eqx.field(default=None, static=True, converter=python_scalar)
     max_steps: int = eqx.field(default=256, static=True, converter=python_scalar)
 

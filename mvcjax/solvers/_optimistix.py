@@ -12,6 +12,7 @@ import lineax as lx
 import optimistix as optx
 
 from ._base import (
+    CG_KEYWORDS_REMOVED,
     AbstractSolver,
     check_count,
     check_steps,
@@ -52,6 +53,8 @@ class _OptimistixLeastSquares(AbstractSolver):
     value): tolerances other than None or a finite number >= 0, `max_steps` not a
     whole number >= 1, a `linear_solver` that is neither.
     """
+
+    _REMOVED = CG_KEYWORDS_REMOVED
 
     rtol: float | None = eqx.field(default=None, static=True, converter=python_scalar)
     atol: float | None = eqx.field(default=None, static=True, converter=python_scalar)
