@@ -84,11 +84,18 @@ def _anderson_extrapolate(state: _Anderson, g, f, regularisation):
     valid = jnp.where(has_prev, state.valid.at[slot].set(True), state.valid)
     d_f_masked = jnp.where(valid[:, None], d_f, 0.0)
     gram = d_f_masked @ d_f_masked.T
-    # Tikhonov regularisation relative to the data's scale keeps the small system sound
-    # when the remembered steps are nearly parallel.
-    ridge = regularisation * jnp.trace(gram) + jnp.finfo(g.dtype).tiny
-    gram = gram + jnp.diag(jnp.where(valid, ridge, 1.0))
-    gamma = jnp.linalg.solve(gram, d_f_masked @ f)
+    # Tikhonov regularisation relative to the data's scale (at least the dtype's
+    # resolution, below which it would add nothing) keeps the small system sound when the
+    # remembered steps are nearly parallel. Steps below the rounding noise of the
+    # residual carry no information: no mix then, and no solve whose overflow would turn
+    # the gradients through the rejected branch into NaN.
+    eps = jnp.finfo(g.dtype).eps
+    trace = jnp.trace(gram)
+    usable = trace > eps**2 * (f @ f) + jnp.finfo(g.dtype).tiny
+    ridge = jnp.asarray(max(regularisation, float(eps)), g.dtype) * trace
+    gram = jnp.where(usable, gram + jnp.diag(jnp.where(valid, ridge, 1.0)),
+                     jnp.eye(m, dtype=g.dtype))
+    gamma = jnp.where(usable, jnp.linalg.solve(gram, d_f_masked @ f), jnp.zeros((), g.dtype))
     mixed = g - jnp.where(valid[:, None], d_g, 0.0).T @ gamma
     new = _Anderson(d_g, d_f, valid, g, f, state.count + 1)
     return mixed, new
