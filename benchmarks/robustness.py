@@ -725,6 +725,34 @@ def comb_with_narrow_slots():
     return check_rig(build(outer, [[0.05, 0.1], [0.05, 0.9], [0.82, 0.9]]))
 
 
+def built_within(seconds, outer, handles):
+    """`check_rig` of the rig built from `outer`, if `Rig.build` took at most `seconds`."""
+    start = time.perf_counter()
+    rig = build(outer, handles)
+    took = time.perf_counter() - start
+    if took > seconds:
+        raise Wrong(f"Rig.build took {took:.1f} s, over {seconds} s")
+    return f"built in {took:.1f} s; " + check_rig(rig)
+
+
+@case("thin shapes", quick=True)
+def comb_of_40_points_with_0_001_slots():
+    np = _np()
+    outer = [(0, 1), (0, -1)]
+    for x in np.arange(1, 10) / 10:
+        outer += [(x - 5e-4, -1), (x - 5e-4, 0), (x + 5e-4, 0), (x + 5e-4, -1)]
+    outer = np.array(outer[:-4] + [(1, -1), (1, 1)], float)
+    return built_within(10, outer, [[0.5, 0.5], [0.05, -0.9]])
+
+
+@case("thin shapes")
+def star_of_200_lobes_in_100000_points():
+    np = _np()
+    t = np.linspace(0, 2 * np.pi, 100_000, endpoint=False)
+    r = 1 + 0.3 * np.sin(200 * t)
+    return built_within(10, np.stack([r * np.cos(t), r * np.sin(t)], axis=1), [[0, 0], [0.5, 0]])
+
+
 @case("thin shapes")
 def strip_1e4_by_1():
     return check_rig(build(rect(1e4, 1), [[10, 0.5], [9990, 0.5]]))

@@ -142,7 +142,9 @@ def _plot_arm_poses(axes, arm: dict, degrees: float) -> None:
         ax.plot(*np.asarray(arm_targets).T, "x", color="k", markersize=7)
         ax.set_title(f"right arm turned {degrees:g} degrees: {name}, "
                      f"{folded} triangles folded (red)", fontsize=10)
-    points = np.concatenate([np.asarray(v) for v, _, _ in arm["poses"].values()])
+    # Framed to hold every pose and the rest outline drawn under them.
+    points = np.concatenate([np.asarray(arm_rig.shape_mesh.vertices),
+                             *(np.asarray(v) for v, _, _ in arm["poses"].values())])
     lo, hi = points.min(axis=0), points.max(axis=0)
     pad = 0.04 * (hi - lo).max()
     for ax in axes:

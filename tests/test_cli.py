@@ -22,3 +22,26 @@ def test_demo_writes_a_figure_an_animation_and_reports(tmp_path):
     image = matplotlib.image.imread(out)
     assert image.shape[0] > 300 and image.shape[1] > 600
     assert image[..., :3].std() > 0.05  # not a blank canvas
+
+
+def test_the_demo_frames_the_arm_poses_and_the_rest_outline_under_them():
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    import mvcjax
+    from mvcjax.__main__ import _plot_arm_poses
+
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    rig = mvcjax.Rig.build(mvcjax.Shape.from_polygon(square), [[0.5, 0.5]])
+    rest = np.asarray(rig.shape_mesh.vertices)
+    moved = rest + np.array([3.0, 2.0])
+    poses = {"default": (moved, None, 0), "FoldFree": (moved, None, 0)}
+    fig, axes = plt.subplots(1, 2)
+    _plot_arm_poses(axes, {"rig": rig, "targets": moved[:1], "poses": poses}, 90.0)
+    for ax in axes:
+        (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+        for points in (rest, moved):
+            assert x0 < points[:, 0].min() and points[:, 0].max() < x1
+            assert y0 < points[:, 1].min() and points[:, 1].max() < y1
+    plt.close(fig)

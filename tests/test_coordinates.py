@@ -73,3 +73,22 @@ def test_distance_outside_a_triangle():
     # Inside; below the bottom edge; left of the left edge; beyond the hypotenuse (whose
     # normal is (3, 4) / 5: 0.4 up is 0.32 out).
     np.testing.assert_allclose(distance, [0.0, 0.25, 0.5, 0.32], atol=1e-12)
+
+
+def test_locate_points_agrees_with_comparing_every_triangle():
+    # It looks among the nearest triangles first: the same face and depth as the same
+    # arithmetic through all of them, ties (points on edges and vertices) included.
+    from scipy.spatial import Delaunay
+
+    from mvcjax.geometry._coordinates import _smallest_coordinates, cross
+
+    rng = np.random.default_rng(0)
+    vertices = rng.uniform(size=(300, 2))
+    faces = Delaunay(vertices).simplices
+    points = np.concatenate([rng.uniform(-0.2, 1.2, size=(2000, 2)), vertices,
+                             0.5 * (vertices[faces[:, 0]] + vertices[faces[:, 1]])])
+    face, depth = locate_points(points, vertices, faces)
+    a, b, c = (vertices[faces[:, i]] for i in range(3))
+    low = _smallest_coordinates(points, a, b - a, c - a, 1 / cross(b - a, c - a))
+    np.testing.assert_array_equal(face, np.argmax(low, axis=1))
+    np.testing.assert_allclose(depth, low.max(axis=1), atol=1e-12)

@@ -3,6 +3,7 @@ paths, against float64 references."""
 
 import jax
 import jax.numpy as jnp
+import lineax as lx
 import numpy as np
 import pytest
 
@@ -52,3 +53,23 @@ def test_gradients_through_long_fixed_g_solves_match_finite_differences(solver):
     loss = jax.jit(loss)
     exact, approx = directional_derivatives(loss, targets, h=1e-2)
     assert np.isfinite(exact) and exact == pytest.approx(approx, rel=1e-3)
+
+
+@pytest.mark.parametrize("weights", [
+    mvcjax.Weights.paper(mvc=0, length=0),
+    mvcjax.Weights.paper(laplacian=0, length=0),
+    mvcjax.Weights.paper(length=0),
+], ids=["laplacian-only", "mvc-only", "no-lengths"])
+def test_least_squares_solvers_claim_convergence_only_near_the_minimum(weights):
+    # Without the edge lengths the energy has a flat valley that only the tie-broken
+    # weight holds: step-size tests stopped there, far from its bottom, and said converged.
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    rig = mvcjax.Rig.build(mvcjax.Shape.from_polygon(square), [[0.1, 0.1], [0.9, 0.9]],
+                           weights=weights)
+    targets = rig.handle_positions + jnp.asarray([[0.0, 0.0], [0.3, 0.2]])
+    deeper = mvcjax.GaussNewton(max_steps=2000, rtol=0, atol=0, linear_solver=lx.Cholesky())
+    for solver in (mvcjax.GaussNewton(), mvcjax.LevenbergMarquardt(), mvcjax.Dogleg()):
+        vertices, info = rig.solve(targets, solver, return_info=True)
+        if bool(info.converged):
+            bottom = rig.solve(targets, deeper, init=vertices)
+            assert float(jnp.abs(bottom - vertices).max()) < 1e-2 * np.sqrt(2), solver

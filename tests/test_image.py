@@ -1,3 +1,5 @@
+import warnings
+
 import numpy as np
 import pytest
 from PIL import Image
@@ -226,6 +228,7 @@ def _sprite_png_and_jpeg():
     return png, load_image(Image.open(io.BytesIO(buffer.getvalue())))
 
 
+@pytest.mark.filterwarnings("ignore:image is opaque")
 def test_a_keyed_jpeg_renders_without_a_halo():
     # The same sprite from a PNG with alpha and from a JPEG on white: cut out of the white,
     # its edge pixels render in the sprite's colours, not the background's.
@@ -247,6 +250,18 @@ def test_a_keyed_jpeg_renders_without_a_halo():
     assert np.abs(edge_colour(jpeg) - want).max() > 0.1  # the opaque JPEG: a light rim
     # Cut out, it makes the same shape as the PNG's alpha, to a pixel along the outline.
     np.testing.assert_allclose(mvcjax.Shape.from_image(cut).area, shape.area, rtol=0.03)
+
+
+def test_an_opaque_picture_on_a_backdrop_warns_and_names_cut_out():
+    png, jpeg = _sprite_png_and_jpeg()
+    shape = mvcjax.Shape.from_image(png)
+    rig = mvcjax.Rig.build(shape, [shape.closest_point((64, 80))])
+    with pytest.warns(UserWarning, match=r"rim.*mvcjax\.cut_out\(image\)"):
+        mvcjax.Renderer.build(rig, jpeg)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for picture in (png, mvcjax.cut_out(jpeg), mvcjax.advanced.checkerboard(128, 128)):
+            mvcjax.Renderer.build(rig, picture)
 
 
 def test_cut_out_keeps_the_inside_and_drops_the_background():

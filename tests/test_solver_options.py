@@ -225,13 +225,29 @@ def test_an_overflowing_energy_is_not_converged(solver):
     assert not bool(info.converged)
 
 
-def test_rescaled_info_is_not_converged_once_its_energy_overflows():
+def test_rescaled_info_keeps_convergence_where_its_energy_overflows():
     info = mvcjax.advanced.SolveInfo(converged=jnp.asarray(True), iterations=jnp.asarray(3),
-                            energy=jnp.asarray(1e30, jnp.float32))
-    assert bool(info.rescaled(10.0).converged)
-    assert float(info.rescaled(10.0).energy) == pytest.approx(1e31, rel=1e-6)
-    assert not bool(info.rescaled(jnp.float32(1e10)).converged)  # 1e40 overflows float32
-    assert not bool(info.rescaled(1.0, jnp.array([[0.0, jnp.nan]])).converged)
+                                     energy=jnp.asarray(1e30, jnp.float32))
+    assert float(info.rescaled(10.0).energy) == pytest.approx(1e32, rel=1e-6)
+    huge = info.rescaled(jnp.float32(1e10))  # 1e50: past float32's range
+    assert bool(huge.converged) and float(huge.energy) == np.inf
+    rest = mvcjax.advanced.SolveInfo(converged=jnp.asarray(True), iterations=jnp.asarray(3),
+                                     energy=jnp.asarray(0.0, jnp.float32))
+    assert float(rest.rescaled(jnp.float32(1e20)).energy) == 0.0  # not 0 * inf
+
+
+@pytest.mark.parametrize("size", [1e-20, 1e20])
+def test_float32_shapes_at_the_ends_of_the_size_range_converge(size):
+    # At 1e20 the energy in the user's units was 0 * inf at rest: NaN, "not converged".
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]) * size
+    rig = mvcjax.Rig.build(mvcjax.Shape.from_polygon(square),
+                           square[[0, 2]] * 0.9 + 0.05 * size, dtype=jnp.float32)
+    for solver in (mvcjax.GaussNewton(), mvcjax.FoldFree()):
+        _, info = rig.deform(rig.handle_positions, solver, return_info=True)
+        assert bool(info.converged) and 0 <= float(info.energy) < 1e-6 * size**2
+        posed = rig.handle_positions.at[1].add(0.2 * size)
+        _, info = rig.deform(posed, solver, return_info=True)
+        assert bool(info.converged) and np.isfinite(float(info.energy))
 
 
 def test_stopping_early_leaves_the_primal_unchanged(stick, stick_targets):

@@ -30,6 +30,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
 
 import animation
+import compile as compile_times
 import dataset
 import folds
 import jit_method
@@ -402,6 +403,11 @@ def vmap_rules_table(data: dict, source: str) -> str:
     return _measured_on(data, source) + "\n\n" + vmap_rules.format_table(data)
 
 
+def compile_table(data: dict, source: str) -> str:
+    """`benchmarks/compile.py`: first calls, each in a fresh process, cold and cached."""
+    return _measured_on(data, source) + "\n\n" + compile_times.format_table(data)
+
+
 def animation_table(data: dict, source: str) -> str:
     """`benchmarks/animation.py`: an animation's frames from their turned starts, or each
     from the pose before."""
@@ -484,6 +490,7 @@ TABLES = [
     Table(BENCHMARKS, "deform", _results("deform"), deform_table),
     Table(BENCHMARKS, "solvers", _results("solvers"), solvers_table),
     Table(BENCHMARKS, "animation", _results("animation"), animation_table),
+    Table(BENCHMARKS, "compile", _results("compile"), compile_table),
     Table(BENCHMARKS, "frames", _results("frames"), frames_table),
     Table(BENCHMARKS, "throughput-frame", _results("throughput"), throughput_frame_table),
     Table(BENCHMARKS, "throughput-batch", _results("throughput"), throughput_batch_table),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import scipy.spatial
 from jaxtyping import ArrayLike, Bool, Float, Int
 
 
@@ -107,28 +108,50 @@ def distance_outside(points: Float[np.ndarray, "n 2"],
     return np.maximum(-bary[rows, k], 0.0) * area2 / np.maximum(edge, 1e-300)
 
 
+# A smallest barycentric coordinate below this is a point on an edge, or outside.
+ON_AN_EDGE = 1e-9
+
+
+def _smallest_coordinates(points, a, ab, ac, inv_area):
+    """Each point's smallest barycentric coordinate in each of its triangles: `points`
+    `(n, 2)` against triangles `(n, k, ...)` or `(k, ...)`."""
+    p = points[:, None, :] - a
+    wb = cross(p, ac) * inv_area
+    wc = cross(ab, p) * inv_area
+    return np.minimum(np.minimum(wb, wc), 1.0 - wb - wc)
+
+
 def locate_points(
     points: Float[np.ndarray, "n 2"],
     vertices: Float[np.ndarray, "v 2"],
     faces: Int[np.ndarray, "f 3"],
     chunk: int = 4096,
+    candidates: int = 16,
 ) -> tuple[Int[np.ndarray, " n"], Float[np.ndarray, " n"]]:
     """The triangle containing each point, and how far inside it is.
 
     Returns the face index maximising the smallest barycentric coordinate, and that
-    coordinate (negative: the point is outside every triangle).
+    coordinate (negative: the point is outside every triangle). Only one triangle holds
+    a point inside it, so it is looked for among the `candidates` triangles whose
+    centroids are nearest first; the points that none of those holds inside are compared
+    with every triangle.
     """
     tri = vertices[faces]
     a, ab, ac = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
     inv_area = 1.0 / cross(ab, ac)
-    face = np.empty(len(points), np.int64)
-    depth = np.empty(len(points))
-    for start in range(0, len(points), chunk):
-        p = points[start : start + chunk, None, :] - a[None]
-        wb = cross(p, ac[None]) * inv_area
-        wc = cross(ab[None], p) * inv_area
-        low = np.minimum(np.minimum(wb, wc), 1.0 - wb - wc)
-        best = np.argmax(low, axis=1)
-        face[start : start + chunk] = best
-        depth[start : start + chunk] = low[np.arange(len(best)), best]
+    k = min(candidates, len(faces))
+    _, near = scipy.spatial.cKDTree(tri.mean(axis=1)).query(points, k=k)
+    near = near.reshape(len(points), k)
+    low = _smallest_coordinates(points, a[near], ab[near], ac[near], inv_area[near])
+    best = np.argmax(low, axis=1)
+    rows = np.arange(len(points))
+    face, depth = near[rows, best], low[rows, best]
+    # Outside every candidate, or on an edge (another triangle, perhaps no candidate,
+    # may hold it as well): compared with every triangle.
+    outside = np.flatnonzero(depth < ON_AN_EDGE)
+    for start in range(0, len(outside), chunk):
+        rest = outside[start : start + chunk]
+        low = _smallest_coordinates(points[rest], a, ab, ac, inv_area)
+        face[rest] = np.argmax(low, axis=1)
+        depth[rest] = low[np.arange(len(rest)), face[rest]]
     return face, depth

@@ -19,7 +19,8 @@ def _resample_ring(ring: np.ndarray, step: float) -> np.ndarray:
     # same shape anywhere else would get another mesh.
     pieces = np.linalg.norm(nxt - ring, axis=1) / step
     counts = np.maximum(np.ceil(pieces * (1 - 1e-9)).astype(int), 1)
-    t = np.concatenate([np.arange(c) / c for c in counts])
+    first = np.repeat(np.cumsum(counts) - counts, counts)
+    t = (np.arange(counts.sum()) - first) / np.repeat(counts, counts)
     start = np.repeat(ring, counts, axis=0)
     return start + t[:, None] * (np.repeat(nxt, counts, axis=0) - start)
 
@@ -156,6 +157,8 @@ def counter_clockwise(verts, faces):
 
 
 MAX_SAMPLES = 200_000
+# Above this many pieces the gap cut is merged into lines before it is buffered.
+MANY_CUT_PIECES = 5_000
 
 
 def _gap_cuts(shape: Shape, margin: float, step: float | None = None):
@@ -277,6 +280,13 @@ def control_polygon(shape: Shape, margin: float, spacing: float) -> list[np.ndar
     cut, narrowest = _gap_cuts(shape, margin)
     clearance = min(0.05 * margin, 0.2 * narrowest)
     region = poly.buffer(margin, quad_segs=4)
+    if cut is not None and shapely.get_num_geometries(cut) > MANY_CUT_PIECES:
+        # The cut comes as a piece per Voronoi ridge, tens of thousands along narrow
+        # slots, which GEOS buffers for minutes: snapped to a grid far finer than the
+        # clearance, they merge into a few lines, which buffer in a fraction of a second,
+        # to within a fiftieth of the clearance.
+        cut = shapely.line_merge(shapely.set_precision(cut, clearance / 100))
+        cut = cut.simplify(clearance / 50)
     if cut is not None:
         region = region.difference(cut.buffer(clearance, quad_segs=2))
     region = region.union(poly)

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -76,6 +77,22 @@ def as_picture(image, name: str) -> np.ndarray:
         return load_image(image)
     except (TypeError, ValueError) as error:
         raise type(error)(f"{name}: {error}") from None
+
+
+def _warn_if_on_a_backdrop(picture: np.ndarray, texture_points: np.ndarray) -> None:
+    """Say how to avoid a rim where an opaque picture shows its subject on a plain
+    backdrop (its four corners one colour, the mesh clear of them: a JPEG of a drawing):
+    the shape's edge, traced half a pixel into the backdrop, is drawn in its colour."""
+    rows, cols = picture.shape[:2]
+    corners = picture[[0, 0, -1, -1], [0, -1, 0, -1]]
+    lo, hi = texture_points.min(axis=0), texture_points.max(axis=0)
+    clear = lo[0] > 0.5 and lo[1] > 0.5 and hi[0] < cols - 1.5 and hi[1] < rows - 1.5
+    if picture[..., 3].min() >= 1.0 and np.ptp(corners, axis=0).max() < 0.05 and clear:
+        warnings.warn(
+            "image is opaque and its corners share one colour: the shape's edge will show "
+            "a rim of that backdrop. Cut the subject out first: "
+            "Renderer.build(..., mvcjax.cut_out(image)), which makes the backdrop "
+            "transparent.", stacklevel=4)
 
 
 def checkerboard(
@@ -366,6 +383,7 @@ class Renderer(JittableModule):
         if image is not None:
             _check_cover(picture, texture_points, np.asarray(vertices, np.float64),
                          np.asarray(faces))
+            _warn_if_on_a_backdrop(picture, texture_points)
         order, level = draw_levels(depth, vertices, faces)
         faces = faces[order]
         if alpha not in ("mesh", "picture"):
@@ -527,8 +545,6 @@ class Renderer(JittableModule):
         cut off in every picture that shows it), and how to keep it all."""
         out = self.leaves_window(frames)
         if out.any():
-            import warnings
-
             xmin, ymin, xmax, ymax = np.asarray(self.window, np.float64)
             first = int(np.argmax(out))
             warnings.warn(

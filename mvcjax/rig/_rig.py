@@ -774,9 +774,7 @@ def solve_in_frame(rig: Rig, targets, solver: AbstractSolver, init):
         lambda i: (i.inverted, i.handle_miss), info,
         (inverted_count(vertices, energy.faces, energy.rest), miss * rig.frame.scale),
         is_leaf=lambda x: x is None)
-    # In the user's units the energy can overflow where the rig's was finite: then it did
-    # not converge.
-    return vertices, info.rescaled(rig.frame.scale**2)
+    return vertices, info.rescaled(rig.frame.scale)
 
 
 def _traced(*trees) -> bool:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import abc
+import dataclasses
 from typing import Any, ClassVar
 
 import equinox as eqx
@@ -22,7 +23,9 @@ class SolveInfo(eqx.Module):
         converged: whether the solver met its tolerance (a fixed iteration count that
             did not is reported as not converged, not hidden).
         iterations: the number of steps taken.
-        energy: the energy (6) at the returned control vertices.
+        energy: the energy (6) at the returned control vertices, in the user's units
+            (infinite where it exceeds the dtype's range; `converged` does not depend on
+            that).
         inverted: how many control triangles the pose turned inside out (`FoldFree`
             keeps it at 0). The picture is the shape mesh, which can fold where no
             control triangle does and stay unfolded where one does:
@@ -41,16 +44,13 @@ class SolveInfo(eqx.Module):
     inverted: Int[Array, ""] | None = None
     handle_miss: Float[Array, ""] | None = None
 
-    def rescaled(self, energy_factor, vertices=None) -> SolveInfo:
-        """The info with the energy times `energy_factor` (from the rig's frame to the
-        user's units), no longer converged if that energy (or the given `vertices`, in
-        those units) is not finite: a finite solve in the frame may overflow outside it."""
-        energy = self.energy * energy_factor
-        converged = self.converged & jnp.isfinite(energy)
-        if vertices is not None:
-            converged = converged & jnp.all(jnp.isfinite(vertices))
-        return SolveInfo(converged=converged, iterations=self.iterations, energy=energy,
-                         inverted=self.inverted, handle_miss=self.handle_miss)
+    def rescaled(self, scale) -> SolveInfo:
+        """The info with the energy from the rig's frame to the user's units (times the
+        frame's `scale` squared). Convergence was decided in the frame: a shape so large
+        that its energy exceeds the dtype's range in its own units (float32's 3.4e38,
+        which a posed shape a few 1e18 across can reach) keeps it, with an infinite
+        `energy` that says so."""
+        return dataclasses.replace(self, energy=self.energy * scale * scale)
 
 
 class SkinnedMesh(eqx.Module):

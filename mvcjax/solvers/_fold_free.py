@@ -23,7 +23,7 @@ from ._base import (
     converged_and_finite,
     python_scalar,
 )
-from ._least_squares import ScaledProblem, default_tol
+from ._least_squares import NEAR_MINIMUM, ScaledProblem, default_tol
 from ._normal_cg import GaussNewtonMatrix, StructuredCG, _dot, conjugate_gradient, hessian_solve
 from ._optimistix import GaussNewton
 
@@ -386,8 +386,11 @@ class FoldFree(AbstractSolver):
         new_y = y + step_size * direction
         new_points = tuple(p + step_size * q for p, q in zip(points, moves))
         new_value = jnp.where(accept, trial, value)
-        converged = _step_converged(accept, y, new_y, value, new_value, 2 * _dot(gradient, x),
-                                    rtol, atol)
+        # As in the least-squares solvers, a stop counts as convergence only near a
+        # minimum (`ScaledProblem.fixed_g_distance`, here of the energy and the barriers).
+        near = jnp.max(jnp.abs(inverse.mv(gradient))) <= NEAR_MINIMUM * max(rtol, atol)
+        converged = near & _step_converged(accept, y, new_y, value, new_value,
+                                           2 * _dot(gradient, x), rtol, atol)
         return (k + 1, new_y, new_points, new_value,
                 (y, model.normal_point, gradient), (converged | ~accept, converged))
 

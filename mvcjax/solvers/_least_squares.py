@@ -25,6 +25,12 @@ from ._base import SolveInfo, converged_and_finite
 _JACOBIAN_LIMIT_BYTES = 2**30
 
 
+# A solve is declared converged only where the fixed-G step (`fixed_g_distance`) is at
+# most this many times its tolerance: the solvers' step-size tests alone stop in flat
+# valleys far from the minimum.
+NEAR_MINIMUM = 100.0
+
+
 def default_tol(dtype) -> float:
     # Tolerances on coordinates scaled to the unit diagonal: near sqrt(eps) is what a
     # least-squares fit can resolve in that precision.
@@ -187,6 +193,14 @@ class ScaledProblem(eqx.Module):
         r = self.residuals(self.scaled(columns.T))
         weights = self.energy.weights
         return jnp.sum(r * r) * self.energy.scale**2 * weights.largest() / NORMAL_WEIGHT
+
+    def fixed_g_distance(self, y: Float[Array, "2 n"], inverse) -> Float[Array, ""]:
+        """How far `y` is from the minimum, estimated by the largest coordinate of the
+        fixed-G step `N^{-1} J^T r` there (`inverse`: the factor's `N^{-1}`), in scaled
+        coordinates: zero at a minimum, and small only near one, though it underestimates
+        where the energy is flatter than `N` (a valley that a tie-broken weight holds)."""
+        r, pullback = jax.vjp(self.residuals, y)
+        return jnp.max(jnp.abs(inverse.mv(pullback(r)[0])))
 
     def result(self, y: Float[Array, "2 n"], converged, iterations
                ) -> tuple[Float[Array, "n 2"], SolveInfo]:

@@ -26,7 +26,7 @@ from ._descents import (
     StructuredDoglegDescent,
     StructuredNewtonDescent,
 )
-from ._least_squares import ScaledProblem, check_jacobian_fits, default_tol
+from ._least_squares import NEAR_MINIMUM, ScaledProblem, check_jacobian_fits, default_tol
 from ._normal_cg import HessianCG, StructuredCG
 
 
@@ -77,6 +77,11 @@ class _OptimistixLeastSquares(AbstractSolver):
             raise TypeError(f"{name}(linear_solver={self.linear_solver!r}): give "
                             f"{fix['cg']} or a lineax solver such as {fix['cholesky']}.")
 
+    def _tolerances(self, dtype) -> tuple[float, float]:
+        """`rtol` and `atol`, the defaults for `dtype` where not given."""
+        return tuple(default_tol(dtype) if t is None else float(t)
+                     for t in (self.rtol, self.atol))
+
     def _parts(self, dense: lx.AbstractLinearSolver
                ) -> tuple[type, optx.AbstractDescent, optx.AbstractSearch]:
         """The structured descent's class, optimistix's own descent with the `dense`
@@ -89,8 +94,7 @@ class _OptimistixLeastSquares(AbstractSolver):
         # The dense descent is only built, not run, beside the structured one.
         dense = lx.Normal(lx.Cholesky()) if structured_cg else _least_squares_solver(linear)
         structured, descent, search = self._parts(dense)
-        tols = {"rtol": default_tol(dtype) if self.rtol is None else self.rtol,
-                "atol": default_tol(dtype) if self.atol is None else self.atol}
+        tols = dict(zip(("rtol", "atol"), self._tolerances(dtype)))
         if structured_cg:
             return _GaussNewtonFamily(
                 **tols, descent=structured(
@@ -116,7 +120,11 @@ class _OptimistixLeastSquares(AbstractSolver):
             max_steps=self.max_steps,
             throw=False,
         )
-        return problem.result(sol.value, sol.result == optx.RESULTS.successful,
+        tol = self._tolerances(init.dtype)
+        near = problem.fixed_g_distance(
+            jax.lax.stop_gradient(sol.value),
+            jax.lax.stop_gradient(factor).normal_inverse_operator()) <= NEAR_MINIMUM * max(tol)
+        return problem.result(sol.value, (sol.result == optx.RESULTS.successful) & near,
                               sol.stats["num_steps"])
 
     def fixed_steps(self, steps):

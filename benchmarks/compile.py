@@ -1,0 +1,139 @@
+"""First calls: how long a user waits for a program to compile, each case in a fresh
+process, with and without JAX's persistent compilation cache.
+
+Cases: the default `rig.deform` of the built-in horse; each solver on it; `FoldFree` on
+the character with a bone per arm, its right arm turned 110 degrees (about 3k shape
+vertices); a rig of a new size after the first (its first frame); a renderer's first
+picture; a layered character's first pose. Each is timed in a new Python process, so
+nothing compiled by another case helps it: "cold" with no persistent cache, "cached" in a
+second process that finds what the first wrote to a persistent cache directory
+(`jax_compilation_cache_dir`, see the guide). The building of the rig is outside the
+timed region; the first call, compiling included, is inside. Targets (seconds, on the
+2-core CPU that CI runs on): `FoldFree` 3, the other solvers 1.5, a renderer 1.
+
+    python benchmarks/compile.py [--quick] [--json benchmarks/results/compile-cpu-2core.json]
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+from _timing import quick_and_json, write_results
+
+TARGETS_S = {"FoldFree": 3.0, "GaussNewton": 1.5, "Dogleg": 1.5, "LevenbergMarquardt": 1.5,
+             "FixedG(anderson=5, stop_early=True)": 1.5, "renderer": 1.0}
+CASES = ("deform", "GaussNewton", "Dogleg", "LevenbergMarquardt",
+         "FixedG(anderson=5, stop_early=True)", "FoldFree", "new rig size", "renderer",
+         "character")
+QUICK_CASES = ("deform", "GaussNewton", "FoldFree")
+
+
+def _horse():
+    import numpy as np
+
+    import mvcjax
+    from mvcjax import datasets
+
+    rig = mvcjax.Rig.build(datasets.horse(), datasets.horse_handles())
+    return rig, np.asarray(rig.handle_positions + datasets.horse_drag())
+
+
+def _prepared(case: str):
+    """The first call of `case`, as a function of nothing, its inputs built."""
+    import jax
+    import numpy as np
+
+    import mvcjax
+    from mvcjax import datasets
+
+    if case == "FoldFree":
+        rig = mvcjax.Rig.build(datasets.character(), datasets.character_bones("arms"))
+        targets = np.array(rig.handle_positions)
+        targets[5] = datasets._rotate(targets[5], targets[4], 110.0)
+        return lambda: rig.deform(targets, mvcjax.FoldFree())
+    if case == "character":
+        character = mvcjax.Character.build(datasets.layered_figure(),
+                                           datasets.layered_figure_handles())
+        pose = datasets.layered_figure_wave(4)[1]
+        return lambda: character.deform(pose)
+    rig, targets = _horse()
+    if case == "deform":
+        return lambda: rig.deform(targets)
+    if case == "new rig size":
+        jax.block_until_ready(rig.deform(targets))
+        other = mvcjax.Rig.build(datasets.horse(), datasets.horse_handles(),
+                                 shape_spacing=4.0)  # about 5k vertices, the first 3k
+        return lambda: other.deform(targets)
+    if case == "renderer":
+        return lambda: mvcjax.Renderer.build(rig, size=(256, 256))(rig.shape_mesh.vertices)
+    solver = {"GaussNewton": mvcjax.GaussNewton(), "Dogleg": mvcjax.Dogleg(),
+              "LevenbergMarquardt": mvcjax.LevenbergMarquardt(),
+              "FixedG(anderson=5, stop_early=True)": mvcjax.FixedG(
+                  iterations=300, anderson=5, stop_early=True)}[case]
+    return lambda: rig.deform(targets, solver)
+
+
+def child(case: str) -> None:
+    """Run in the fresh process: print the first call's seconds as JSON."""
+    import jax
+
+    first = _prepared(case)
+    start = time.perf_counter()
+    jax.block_until_ready(first())
+    print(json.dumps({"first_s": time.perf_counter() - start}))
+
+
+def run_case(case: str, cache_dir: str | None) -> float:
+    env = dict(os.environ)
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    if cache_dir is not None:
+        env.update(JAX_COMPILATION_CACHE_DIR=cache_dir,
+                   JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
+                   JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0")
+    out = subprocess.run([sys.executable, __file__, "--child", case], env=env, check=True,
+                         capture_output=True, text=True).stdout
+    return json.loads(out.strip().splitlines()[-1])["first_s"]
+
+
+def measure(cases) -> list[dict]:
+    rows = []
+    for case in cases:
+        cold = run_case(case, None)
+        with tempfile.TemporaryDirectory() as cache:
+            run_case(case, cache)  # fills the cache
+            cached = run_case(case, cache)
+        rows.append({"case": case, "cold_s": cold, "cached_s": cached,
+                     "target_s": TARGETS_S.get(case)})
+        print(rows[-1], flush=True)
+    return rows
+
+
+def format_table(data: dict) -> str:
+    lines = ["| first call | cold (s) | with the persistent cache (s) | target (s) |",
+             "|---|---|---|---|"]
+    for r in data["rows"]:
+        target = "" if r["target_s"] is None else (
+            f"{r['target_s']:g} ({'met' if r['cold_s'] <= r['target_s'] else 'missed'})")
+        lines.append(f"| {r['case']} | {r['cold_s']:.2f} | {r['cached_s']:.2f} | {target} |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["--child"]:
+        child(argv[1])
+        return 0
+    args = quick_and_json(__doc__, "three cases", argv)
+    rows = measure(QUICK_CASES if args.quick else CASES)
+    if args.json:
+        write_results(args.json, rows, quick=args.quick)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
