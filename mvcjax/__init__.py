@@ -54,7 +54,6 @@ __all__ = [
 ]
 
 
-
 def __getattr__(name: str):
     """A name of `mvcjax.advanced` asked for here says where it is."""
     if not name.startswith("_") and hasattr(advanced, name):
