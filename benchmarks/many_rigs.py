@@ -4,9 +4,9 @@ programs are compiled and for a new one; rigs built plain and with a `SizeLadder
 
 Stars of 5 to 11 points and random radii, meshed at a sixtieth of their diagonal (about
 1,000 to 1,800 shape vertices), each built and posed once (`rig.deform`), one after
-another, as a script that rigs every glyph of a font does. mvcjax keeps the programs of
-at most `mvcjax.rig._programs.SIZES_KEPT` rig sizes (`_programs` says why and how); the
-maps and the resident memory are read from `/proc/self` every 10 rigs, over 1,000 rigs.
+another, as a script that rigs every glyph of a font does. A rig's programs go with the
+last rig of its size (`mvcjax.core._programs` says why and how); the maps and the
+resident memory are read from `/proc/self` every 10 rigs, over 1,000 rigs.
 Each way runs in a fresh process of its own, the same stars in the same order.
 
     python benchmarks/many_rigs.py [--quick] [--json benchmarks/results/many_rigs-cpu-2core.json]
@@ -26,6 +26,19 @@ def star(points: int, outer: float, inner: float) -> np.ndarray:
     t = np.linspace(0, 2 * np.pi, 2 * points, endpoint=False)
     r = np.where(np.arange(2 * points) % 2 == 0, outer, inner)
     return np.stack([r * np.cos(t), r * np.sin(t)], axis=1)
+
+
+# Rigs counted as the warm-up: the memory reported is the most after them.
+WARM_UP = 32
+
+
+def size_of(tree) -> tuple:
+    """What decides the programs compiled for `tree`: its structure and its arrays'
+    shapes and dtypes."""
+    import jax
+
+    leaves, structure = jax.tree.flatten(tree)
+    return structure, tuple((np.shape(x), str(np.result_type(x))) for x in leaves)
 
 
 def memory_maps() -> int:
@@ -58,7 +71,6 @@ def measure(count: int, laddered: bool) -> tuple[list[dict], dict]:
     """`count` stars built and posed one after another, plain or with a `SizeLadder`:
     rows of memory as they go by, and a summary of the times."""
     import mvcjax
-    from mvcjax.rig import _programs
     from mvcjax.rig._ladder import padded_twin
 
     ladder = mvcjax.SizeLadder() if laddered else None
@@ -69,9 +81,9 @@ def measure(count: int, laddered: bool) -> tuple[list[dict], dict]:
         outer = float(rng.uniform(60, 120))
         polygon = star(points, outer, outer * float(rng.uniform(0.35, 0.6)))
         rig, build_s, frame_s = posed(polygon, ladder)
-        sizes.add(_programs.size_of(rig))
+        sizes.add(size_of(rig))
         if padded_twin(rig) is not None:
-            rungs.add(_programs.size_of(padded_twin(rig)))
+            rungs.add(size_of(padded_twin(rig)))
         new.append((build_s, frame_s))
         if i % 10 == 5:
             # The same star again: the same sizes, compiled just before.
@@ -82,11 +94,11 @@ def measure(count: int, laddered: bool) -> tuple[list[dict], dict]:
                          "resident_mb": resident_mb(),
                          "shape_vertices": int(rig.shape_mesh.vertices.shape[0]),
                          "control_vertices": int(rig.control_mesh.vertices.shape[0])})
-    warm = [r for r in rows if r["rigs"] > 2 * _programs.SIZES_KEPT] or rows
+    warm = [r for r in rows if r["rigs"] > WARM_UP] or rows
     totals = [b + f for b, f in new]
     summary = {
         "ladder": laddered,
-        "sizes_kept": _programs.SIZES_KEPT,
+        "warm_up": WARM_UP,
         "rig_sizes": len(sizes),
         "twin_sizes": len(rungs),
         "max_memory_maps_after_warmup": max(r["memory_maps"] for r in warm),
@@ -132,7 +144,7 @@ def format_table(data: dict) -> str:
     for w in ways:
         s = summary[w]
         lines.append(f"- {lead[w]}: after the warm-up (the first "
-                     f"{2 * s['sizes_kept']} rigs), at most "
+                     f"{s.get('warm_up', 2 * s.get('sizes_kept', 16))} rigs), at most "
                      f"{s['max_memory_maps_after_warmup']} memory maps and "
                      f"{s['max_resident_mb_after_warmup']:.0f} MB resident; "
                      f"{s['rig_sizes']} rig sizes"

@@ -3,10 +3,8 @@ over devices."""
 
 from __future__ import annotations
 
-import functools
 from typing import Any
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -18,6 +16,7 @@ from .core import (
     NOT_FINITE_TARGETS,
     as_array,
     as_devices,
+    compiled_by,
     finite_when_traced,
     kind_of,
     to_device,
@@ -70,18 +69,16 @@ def _deform_chunked(rig: Rig, targets, solver: AbstractSolver, chunk: int,
     return jax.vmap(lambda v: rig.skinning(v, rig.frame))(control)
 
 
-@eqx.filter_jit
+@compiled_by()
 def _deform_one_device(rig: Rig, targets, solver: AbstractSolver, chunk: int,
                        warm_start: bool):
     return _deform_chunked(rig, targets, solver, chunk, warm_start)
 
 
-@functools.partial(jax.jit, static_argnames=("static", "chunk"), donate_argnames="out",
-                   keep_unused=True)
-def _deform_into(arrays, targets, out, *, static, chunk: int):
+@compiled_by(donate="out")
+def _deform_into(rig: Rig, targets, solver: AbstractSolver, chunk: int, *, out):
     # Donated, `out` holds the result (XLA aliases a donated input to an output of its
     # shape), and the skinning writes into it group by group.
-    rig, solver = eqx.combine(arrays, static)
     control = _solve_chunked(rig, targets, solver, chunk)
     return skin_frames_into(rig.skinning, control, rig.frame, out)
 
@@ -103,7 +100,7 @@ def _check_out(out, frames: int, rig: Rig):
                          "frames and rig, or leave it out.")
 
 
-@eqx.filter_jit
+@compiled_by()
 def _deform_sharded(rig: Rig, targets, solver: AbstractSolver, chunk: int, mesh: Mesh):
     # shard_map: each device maps over its own frames (a lax.map over a sharded axis
     # would gather the frames first).
@@ -118,7 +115,7 @@ def _deform_sharded(rig: Rig, targets, solver: AbstractSolver, chunk: int, mesh:
     )(rig, targets)
 
 
-@eqx.filter_jit
+@compiled_by()
 def _deform_character(character: Character, targets, solver: AbstractSolver, chunk: int):
     # Part by part, parents first, each part's frames solved as a rig's are.
     control, out = [None] * len(character.parts), [None] * len(character.parts)
@@ -265,8 +262,7 @@ def deform_frames(
             raise ValueError("out works on one device; leave it out to shard frames over "
                              f"{len(devices)} devices.")
         _check_out(out, frames, rig)
-        arrays, static = eqx.partition((rig, solver), eqx.is_array)
-        return _deform_into(arrays, targets, out, static=static, chunk=min(chunk, frames))
+        return _deform_into(rig, targets, solver, min(chunk, frames), out=out)
     if len(devices) == 1:
         return _deform_one_device(rig, targets, solver, min(chunk, frames), bool(warm_start))
     return _deform_over_devices(rig, targets, solver, chunk, devices)

@@ -26,7 +26,7 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from .character import Character, CharacterRenderer
-from .core import kind_of, whole_number
+from .core import compiled_by, kind_of, whole_number
 from .rendering import Renderer, as_picture, check_drawn_mesh, in_window
 from .rig import Rig
 from .solvers import DEFAULT_SOLVER, AbstractSolver, check_solver
@@ -322,7 +322,7 @@ def _targets_at(start, offsets, pixel, bone_rows, bone_lengths):
     return targets
 
 
-@eqx.filter_jit
+@compiled_by()
 def _stage(rig, renderer, solver, weights, method, steps: int, start, target_picture, blur,
            pixel, bone_rows, bone_lengths):
     """One stage of the fit: up to `steps` steps of `method` at one blur, from `start`.

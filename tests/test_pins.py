@@ -134,9 +134,12 @@ def test_the_guides_spelling_poses_every_pinned_rig_with_one_program(horse_rig32
     targets = jnp.asarray(rig.handle_positions)
     rigs = [rig.with_pin(5, vertices[inner_point(rig, seed)]) for seed in range(3)]
     frame = jax.jit(mvcjax.Rig.deform)
-    for r in [rig, *rigs]:
+    frame(rig, targets).block_until_ready()
+    # (jax.jit's cache is shared by every jit of `Rig.deform`: count what these add.)
+    compiled = frame._cache_size()
+    for r in rigs:
         frame(r, targets).block_until_ready()
-    assert frame._cache_size() == 1
+    assert frame._cache_size() == compiled
     with jax.log_compiles(True), caplog.at_level("WARNING", logger="jax"):
         for r in rigs:
             jax.jit(r.deform)(targets).block_until_ready()

@@ -1,11 +1,16 @@
-"""The bound on the compiled programs kept: past `SIZES_KEPT` rig sizes, JAX's caches are
-cleared, and every rig alive still poses as before."""
+"""What a rig compiles belongs to it: shared by the rigs of its size alive, gone with the
+last of them (once `RECENT` newer programs have run), and nothing else of the process
+touched (the user's own compiled functions stay compiled)."""
+
+import contextlib
+import gc
 
 import jax
 import numpy as np
+import pytest
 
 import mvcjax
-from mvcjax.rig import _programs
+from mvcjax.core import _programs
 
 
 def star(points, outer=60.0, inner=30.0):
@@ -14,57 +19,118 @@ def star(points, outer=60.0, inner=30.0):
     return np.stack([r * np.cos(t), r * np.sin(t)], axis=1)
 
 
-def rig_of(polygon):
-    shape = mvcjax.Shape.from_polygon(polygon)
-    return mvcjax.Rig.build(shape, [tuple(p) for p in polygon[::2][:3] * 0.3],
-                            shape_spacing=shape.diagonal / 12)
+def build(points, fineness=10):
+    shape = mvcjax.Shape.from_polygon(star(points))
+    return mvcjax.Rig.build(shape, [(0.0, 0.0), (20.0, 5.0)],
+                            shape_spacing=shape.diagonal / fineness)
 
 
-def test_past_the_budget_the_caches_are_cleared_and_rigs_still_pose(monkeypatch):
-    cleared = []
-    clear = jax.clear_caches
-    monkeypatch.setattr(_programs, "SIZES_KEPT", 2)
-    monkeypatch.setattr(_programs, "_sizes", set())
-    monkeypatch.setattr(jax, "clear_caches", lambda: (cleared.append(1), clear()))
-    first = rig_of(star(5))
-    targets = first.handle_positions + 3.0
-    before = np.asarray(first.deform(targets))
-    # The same star again: the same size, nothing new to keep.
-    again = rig_of(star(5))
-    assert _programs.size_of(again) == _programs.size_of(first)
-    rig_of(star(7))
-    assert cleared == []  # two sizes: within the budget
-    rig_of(star(9))
-    assert cleared == [1]  # a third: the caches were cleared first
-    assert len(_programs._sizes) == 1
-    # The first rig compiles anew and poses exactly as before.
-    np.testing.assert_array_equal(np.asarray(first.deform(targets)), before)
+@contextlib.contextmanager
+def compiling(caplog):
+    """The names of the programs compiled inside the block, in the list it yields."""
+    names = []
+    with jax.log_compiles(True), caplog.at_level("WARNING"):
+        caplog.clear()
+        yield names
+        names += [r.getMessage().split()[1] for r in caplog.records
+                  if r.getMessage().startswith("Compiling")]
 
 
-def test_building_a_rig_and_a_renderer_of_new_sizes_compiles_a_few_programs(caplog,
-                                                                           monkeypatch):
-    # Sizes counted from here: the budget, full from earlier tests, would clear JAX's
-    # caches inside a build, which then compiles again what any program needs.
-    monkeypatch.setattr(_programs, "_sizes", set())
+def maps() -> int:
+    with open("/proc/self/maps") as f:
+        return sum(1 for _ in f)
 
+
+def resident_mb() -> float:
+    with open("/proc/self/status") as f:
+        line = next(line for line in f if line.startswith("VmRSS"))
+    return int(line.split()[1]) / 1024
+
+
+def pose(rig):
+    return rig.deform(rig.handle_positions + 2.0)
+
+
+def test_rigs_of_one_size_share_programs_and_a_rig_keeps_its_own(caplog):
+    first = build(5)
+    before = np.asarray(pose(first))
+    # Another rig of the same size, alive beside the first: nothing new to compile.
+    with compiling(caplog) as compiled:
+        pose(build(5))
+    assert compiled == []
+    # Rigs of other sizes come and go; the first keeps its programs and poses as before.
+    for points in (6, 7):
+        pose(build(points))
+    with compiling(caplog) as compiled:
+        again = np.asarray(pose(first))
+    assert compiled == []
+    np.testing.assert_array_equal(again, before)
+
+
+def test_a_rig_built_compiles_a_few_programs_and_its_renderer_a_few_more(caplog):
     # The build's JAX work runs as a few compiled programs, not as dozens of eager
     # operations each compiled anew for every new size (or arrays staged by jnp.asarray).
-    def build(points, fineness):
-        shape = mvcjax.Shape.from_polygon(star(points))
-        return mvcjax.Rig.build(shape, [(0.0, 0.0), (20.0, 5.0)],
-                                shape_spacing=shape.diagonal / fineness)
-
-    mvcjax.Renderer.build(build(5, 10), size=(32, 32))
+    mvcjax.Renderer.build(build(5), size=(32, 32))
     sizes = set()
     for points, fineness in [(7, 14), (9, 17)]:
-        with jax.log_compiles(True), caplog.at_level("WARNING"):
-            caplog.clear()
+        with compiling(caplog) as built:
             rig = build(points, fineness)
-            built = [r.getMessage() for r in caplog.records if "Compiling" in r.getMessage()]
-            caplog.clear()
+        with compiling(caplog) as drawn:
             mvcjax.Renderer.build(rig, size=(32 + points, 32 + points))
-            drawn = [r.getMessage() for r in caplog.records if "Compiling" in r.getMessage()]
         sizes.add(rig.shape_mesh.faces.shape)
         assert 1 <= len(built) <= 2, built
         assert 1 <= len(drawn) <= 2, drawn
     assert len(sizes) == 2  # new sizes each time
+
+
+def test_programs_go_with_the_last_rig_of_their_size(caplog, monkeypatch):
+    monkeypatch.setattr(_programs, "RECENT", 0)  # none kept after their rigs
+    rig = build(11, 13)
+    pose(rig)
+    with compiling(caplog) as compiled:
+        pose(rig)
+    assert compiled == []
+    del rig
+    gc.collect()
+    # Nothing kept them: a new rig of that size compiles them again.
+    with compiling(caplog) as compiled:
+        pose(build(11, 13))
+    assert "jit(_deform)" in compiled
+
+
+def rigs_of_new_sizes(count):
+    """Build, pose and drop `count` rigs, each of a size no other had; the memory maps
+    and resident memory after each."""
+    seen, counts, fineness = set(), [], 8.0
+    while len(counts) < count:
+        fineness += 0.25
+        rig = build(5, fineness)
+        if rig.shape_mesh.vertices.shape in seen:
+            continue
+        seen.add(rig.shape_mesh.vertices.shape)
+        pose(rig)
+        del rig
+        gc.collect()
+        counts.append((maps(), resident_mb()))
+    return counts
+
+
+@pytest.mark.parametrize("count, recent", [
+    (16, 4), pytest.param(200, _programs.RECENT, marks=pytest.mark.slow),
+])
+def test_rigs_of_new_sizes_keep_no_programs_and_leave_the_users_compiled(
+        caplog, monkeypatch, count, recent):
+    monkeypatch.setattr(_programs, "RECENT", recent)
+    # The user's own jitted function, compiled before: it is not compiled again after.
+    user = jax.jit(lambda x: x * 2.0 + 1.0)
+    user(np.ones(3, np.float32))
+    counts = rigs_of_new_sizes(count)
+    with compiling(caplog) as compiled:
+        user(np.ones(3, np.float32))
+    assert compiled == []
+    # Bounded: the last rigs leave no more memory maps or memory than the first ones.
+    half = count // 2
+    first_maps = max(m for m, _ in counts[:half])
+    first_mb = max(mb for _, mb in counts[:half])
+    assert max(m for m, _ in counts[half:]) <= first_maps + 40, counts
+    assert max(mb for _, mb in counts[half:]) <= first_mb + 100, counts

@@ -26,7 +26,15 @@ import shapely
 from jaxtyping import Array, ArrayLike, Float, Int
 from skimage.measure import label
 
-from ..core import JittableModule, check_targets, to_device, whole_number
+from ..core import (
+    JittableModule,
+    Programs,
+    check_targets,
+    compiled_by,
+    programs_field,
+    to_device,
+    whole_number,
+)
 from ..geometry import Shape, Skinning, image_mask, to_uint8
 from ..rendering import Renderer, key_layout
 from ..rig import (
@@ -35,7 +43,6 @@ from ..rig import (
     Handles,
     Rig,
     ShapeMesh,
-    compiled_when_eager,
     make_handles,
     parse_handles,
     pin,
@@ -225,6 +232,7 @@ class Character(JittableModule):
         names: each part's name (static).
         parents: each part's parent, -1 for none (static).
         order: the order the parts are solved in, parents first (static).
+        programs: what the character compiled for itself; it goes with the character.
     """
 
     parts: tuple[Rig, ...]
@@ -234,6 +242,7 @@ class Character(JittableModule):
     names: tuple[str, ...] = eqx.field(static=True)
     parents: tuple[int, ...] = eqx.field(static=True)
     order: tuple[int, ...] = eqx.field(static=True)
+    programs: Programs = programs_field()
 
     @classmethod
     def build(
@@ -408,7 +417,7 @@ def _joined(meshes: list[tuple]) -> list:
         for k in range(1, len(meshes[0]))]
 
 
-@compiled_when_eager
+@compiled_by(inline_when_traced=True)
 def _solve_parts(character: Character, targets, solver: AbstractSolver, init):
     control, info = [None] * len(character.parts), [None] * len(character.parts)
     for i in character.order:
@@ -420,7 +429,7 @@ def _solve_parts(character: Character, targets, solver: AbstractSolver, init):
     return tuple(control), tuple(info)
 
 
-@compiled_when_eager
+@compiled_by(inline_when_traced=True)
 def _deform_parts(character: Character, targets, solver: AbstractSolver, init):
     """Every part solved, parents first, and skinned: one compiled program when called
     outside a transformation, as a rig's `deform` is."""
@@ -459,6 +468,7 @@ class CharacterRenderer(JittableModule):
         order: `(p,)` the default draw order, bottom first (the layers').
         sizes: each part's number of vertices (static).
         names: the parts' names (static).
+        programs: what the renderer compiled for itself; it goes with the renderer.
     """
 
     mesh: Renderer
@@ -466,6 +476,7 @@ class CharacterRenderer(JittableModule):
     order: Int[Array, " p"]
     sizes: tuple[int, ...] = eqx.field(static=True)
     names: tuple[str, ...] = eqx.field(static=True)
+    programs: Programs = programs_field()
 
     @classmethod
     def build(cls, character: Character, layers: Any, *, window: Any = None,
@@ -608,7 +619,7 @@ class CharacterRenderer(JittableModule):
         return out
 
 
-@eqx.filter_jit
+@compiled_by()
 def _draw_character_batch(renderer: CharacterRenderer, vertices, order):
     return jax.vmap(lambda v, o: renderer(v, o))(vertices, order)
 

@@ -1,5 +1,6 @@
 """What every stage uses: the checks at mvcjax's edges (errors naming the argument and
-the fix), transfers to the device, the module base and the batching helpers."""
+the fix), transfers to the device, the module base, the batching helpers and the
+programs compiled for an object (`compiled_by`)."""
 
 from ._batching import (
     one_after_another as one_after_another,
@@ -21,5 +22,11 @@ from ._checks import (
     whole_number as whole_number,
 )
 from ._module import JittableModule as JittableModule
+from ._programs import (
+    Programs as Programs,
+    compiled_by as compiled_by,
+    is_traced as is_traced,
+    programs_field as programs_field,
+)
 from ._progress import progress_bar as progress_bar
 from ._xla import materialise as materialise, to_device as to_device

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex, Float, Int
 
-from ..core import as_array, kind_of
+from ..core import Programs, as_array, kind_of, programs_field
 from ._stencils import EDGE, LAPLACIAN, Blocks, Stencil, length_scale, turn_rest
 
 
@@ -414,6 +414,7 @@ class Energy(eqx.Module):
         scale: rest bounding-box diagonal, the unit of tolerances.
         extra: further terms, after the four of the paper (`Term`; their weights
             count as given, beside `weights`).
+        programs: what the energy compiled for itself (its factor's programs).
     """
 
     rest: Float[Array, "n 2"]
@@ -430,6 +431,7 @@ class Energy(eqx.Module):
     weights: Weights
     scale: Float[Array, ""]
     extra: tuple[Term, ...] = ()
+    programs: Programs = programs_field()
 
     @property
     def num_vertices(self) -> int:

@@ -29,7 +29,7 @@ import scipy.sparse
 import scipy.sparse.linalg
 from jaxtyping import Array, ArrayLike, Complex, Float, Int
 
-from ..core import to_device
+from ..core import compiled_by, to_device
 from ._energy import Energy
 from ._stencils import (
     Blocks,
@@ -62,7 +62,7 @@ def operators(energy: Energy) -> tuple[Float[Array, "rows n"], ...]:
     )
 
 
-@jax.jit
+@compiled_by()
 def _operator_arrays(energy: Energy):
     # One compiled call (cached by shapes) instead of dozens of eager small ones.
     return [t[:3] for t in operator_triplets(energy)]
@@ -109,7 +109,7 @@ def _local_fields(energy: Energy) -> dict[str, Array | None]:
                 rotation=None if local_blocks(energy) is None else rest)
 
 
-@jax.jit
+@compiled_by()
 def local_stencil(energy: Energy) -> tuple[Int[Array, "m 3"], Float[Array, "m 3"]]:
     # One compiled call (cached by shapes) instead of dozens of eager small ones, each
     # compiled anew for a rig of new sizes.
@@ -374,7 +374,7 @@ def dense_factor(energy: Energy, spread: Int[ArrayLike, "n d"] | None = None) ->
                          else to_device(spread, np.int32))
 
 
-@jax.jit
+@compiled_by()
 def _dense_factor(energy: Energy, spread: Int[Array, "n d"]) -> DenseFactor:
     # Weights normalised: the same G, with rounding blind to the weights' scale.
     terms = energy.terms(normalised=True)
@@ -507,7 +507,7 @@ class SparseFactor(AbstractFactor):
         return sparse_factor(energy)
 
 
-@jax.jit
+@compiled_by()
 def _sparse_local_rows(energy: Energy):
     """The local step's arrays, and the weight of each row (its term's)."""
     return _local_fields(energy), _local_row_weights(energy)

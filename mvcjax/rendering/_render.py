@@ -40,11 +40,14 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ..core import (
     JittableModule,
+    Programs,
     as_devices,
     as_points,
+    compiled_by,
     kind_of,
     materialise,
     one_after_another,
+    programs_field,
     progress_bar,
     to_device,
     whole_number,
@@ -150,11 +153,13 @@ def fit_window(
 
 
 def to_pixels(points, window, rows: int, cols: int):
-    """Plane points to fractional `(col, row)` positions, pixel centres at integers."""
+    """Plane points to fractional `(col, row)` positions, pixel centres at integers (a
+    host array for host arrays: no program compiled for a build's sizes)."""
     xmin, ymin, xmax, ymax = window[0], window[1], window[2], window[3]
     col = (points[..., 0] - xmin) * (cols / (xmax - xmin)) - 0.5
     row = (ymax - points[..., 1]) * (rows / (ymax - ymin)) - 0.5
-    return jnp.stack([col, row], axis=-1)
+    stack = np.stack if isinstance(points, np.ndarray) else jnp.stack
+    return stack([col, row], axis=-1)
 
 
 def _bounding_boxes(tri, fringe, rows: int, cols: int):
@@ -258,6 +263,7 @@ class Renderer(JittableModule):
         antialias: whether boundary edges are antialiased (static).
         see_through: whether the texture is partly transparent (`alpha="picture"`), so
             that the layer beneath shows through it (static).
+        programs: what the renderer compiled for itself; it goes with the renderer.
     """
 
     faces: Int[Array, "f 3"]
@@ -273,6 +279,7 @@ class Renderer(JittableModule):
     tile: int = eqx.field(static=True)
     antialias: bool = eqx.field(static=True)
     see_through: bool = eqx.field(static=True)
+    programs: Programs = programs_field()
 
     @classmethod
     def build(
@@ -378,8 +385,8 @@ class Renderer(JittableModule):
             pixel = extent.max() / 512
             size = tuple(int(max(1, round(e / pixel))) for e in extent[::-1])
         rows, cols = check_size(size)
-        texture_points = np.asarray(_host_to_pixels(vertices, image_window,
-                                                    *picture.shape[:2]))
+        texture_points = to_pixels(np.asarray(vertices), np.asarray(image_window),
+                                   *picture.shape[:2])
         if image is not None:
             _check_cover(picture, texture_points, np.asarray(vertices, np.float64),
                          np.asarray(faces))
@@ -401,7 +408,8 @@ class Renderer(JittableModule):
         given as host arrays (`build` checks and prepares them from its arguments)."""
         rows, cols = size
         boundary = on_boundary(faces)
-        tile, rest = _tiling(vertices, faces, boundary, window, rows, cols, antialias)
+        programs = Programs()
+        tile, rest = _tiling(programs, vertices, faces, boundary, window, rows, cols, antialias)
         if budget is None:
             budget = _default_budget(rest, rows, cols, tile)
         budget = whole_number(budget, "budget")
@@ -425,6 +433,7 @@ class Renderer(JittableModule):
             tile=tile,
             antialias=bool(antialias),
             see_through=bool(see_through),
+            programs=programs,
         )
 
     @classmethod
@@ -527,7 +536,8 @@ class Renderer(JittableModule):
                     drawn.append((begin, _draw_batch(renderer, part)))
                 for begin, pictures in drawn:
                     done = min(chunk, len(frames) - begin)
-                    out[begin:begin + done] = to_uint8(np.asarray(pictures[:done]))
+                    # Cut on the host: an eager slice compiles a program for every size.
+                    out[begin:begin + done] = to_uint8(np.asarray(pictures)[:done])
                     bar.update(done)
         return out
 
@@ -606,7 +616,7 @@ def _draw_frames(frames: int, in_batched, renderer: Renderer, vertices, window):
     return _draw_sequence(renderer, vertices, window), True
 
 
-@eqx.filter_jit
+@compiled_by()
 def _draw_batch(renderer: Renderer, frames):
     return jax.vmap(lambda v: renderer(v))(frames)
 
@@ -766,18 +776,21 @@ def _tiles(tri, fringe, rows: int, cols: int, tile: int):
     return first, first + extent - 1, across
 
 
-def _tile_counts(vertices, faces, boundary, window, rows, cols, antialias) -> dict[int, int]:
+def _tile_counts(programs: Programs, vertices, faces, boundary, window, rows, cols,
+                 antialias) -> dict[int, int]:
     """How many tiles of each side in `_TILES` the rest mesh's triangles cover."""
-    across = _tiles_across(np.asarray(vertices[faces], np.float32), np.asarray(boundary),
-                           np.asarray(window, np.float32), rows, cols, antialias)
+    across = programs.run(_tiles_across, (
+        np.asarray(vertices[faces], np.float32), np.asarray(boundary),
+        np.asarray(window, np.float32), rows, cols, antialias), {})
     return {tile: int(np.sum(np.prod(np.asarray(a, np.int64), axis=1)))
             for tile, a in zip(_TILES, across)}
 
 
-def _tiling(vertices, faces, boundary, window, rows, cols, antialias) -> tuple[int, int]:
+def _tiling(programs: Programs, vertices, faces, boundary, window, rows, cols,
+            antialias) -> tuple[int, int]:
     """The tile side with the fewest candidate pixels for the rest mesh, and how many
     tiles that side needs."""
-    counts = _tile_counts(vertices, faces, boundary, window, rows, cols, antialias)
+    counts = _tile_counts(programs, vertices, faces, boundary, window, rows, cols, antialias)
     # A tile is charged as a dozen candidate pixels (its triangle's row, the slot's
     # arithmetic), about its cost against a pixel's.
     tile = min(_TILES, key=lambda t: counts[t] * (t * t + 12))
@@ -794,8 +807,9 @@ def stack_tiling(renderers) -> tuple[int, int]:
     candidate pixels over all their rest meshes; and a budget that holds each (its
     own, where it drew with that side, or the default for that side)."""
     rows, cols = renderers[0].shape
-    counts = [_tile_counts(np.asarray(r.rest), np.asarray(r.faces), r.boundary, r.window,
-                           rows, cols, r.antialias) for r in renderers]
+    programs = renderers[0].programs
+    counts = [_tile_counts(programs, np.asarray(r.rest), np.asarray(r.faces), r.boundary,
+                           r.window, rows, cols, r.antialias) for r in renderers]
     tile = min(_TILES, key=lambda t: sum(c[t] for c in counts) * (t * t + 12))
     budget = max(max(r.budget if r.tile == tile else 0, _default_budget(c[tile], rows, cols,
                                                                            tile))
@@ -803,15 +817,11 @@ def stack_tiling(renderers) -> tuple[int, int]:
     return tile, budget
 
 
-@functools.partial(jax.jit, static_argnums=(3, 4, 5))
 def _tiles_across(corners, boundary, window, rows: int, cols: int, antialias: bool):
-    # One compiled call at build time (cached by sizes) instead of dozens of eager ones.
+    # One compiled call at build time instead of dozens of eager ones.
     tri = to_pixels(corners, window, rows, cols)
     fringe = _widest(_fringes(boundary, antialias))
     return [_tiles(tri, fringe, rows, cols, tile)[2] for tile in _TILES]
-
-
-_host_to_pixels = jax.jit(to_pixels, static_argnums=(2, 3))
 
 
 def _fringes(boundary, antialias: bool):
@@ -979,7 +989,7 @@ def _front_and_back(layers, face_bits: int) -> list:
     return [front[:-1], back[:-1]]
 
 
-@eqx.filter_jit
+@compiled_by()
 def _draw(renderer: Renderer, vertices, window):
     rows, cols = renderer.shape
     faces = renderer.faces

@@ -24,7 +24,6 @@ from ._rig import (
     ControlMesh as ControlMesh,
     Rig as Rig,
     ShapeMesh as ShapeMesh,
-    compiled_when_eager as compiled_when_eager,
     shape_thickness as shape_thickness,
     solve_in_frame as solve_in_frame,
 )

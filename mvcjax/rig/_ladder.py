@@ -18,7 +18,6 @@ from __future__ import annotations
 import math
 import numbers
 import types
-import weakref
 
 import equinox as eqx
 import jax
@@ -119,22 +118,21 @@ def twin_parts(parts: dict, ladder: SizeLadder):
     return factor, energy, finish
 
 
-# Each laddered rig's twin, by the rig's id, for as long as the rig lives. Beside the
-# rig, not in it: an attribute of its own would change how equinox flattens it (and so
-# its pytree structure, which stacks and `jax.tree.map` compare with plain rigs').
-_TWINS: dict[int, object] = {}
-
-
 def keep_twin(rig, twin) -> None:
-    """Keep `twin` as `rig`'s until `rig` is collected."""
-    _TWINS[id(rig)] = twin
-    weakref.finalize(rig, _TWINS.pop, id(rig), None)
+    """Keep `twin` as `rig`'s, among what the rig keeps for itself (`rig.programs`): it
+    goes with the rig, and stays with rigs rebuilt from the very same arrays."""
+    rig.programs.kept["twin"] = (jax.tree.flatten(rig), twin)
 
 
 def padded_twin(rig):
-    """The twin `Rig.build(..., ladder=...)` kept for this very rig object, or None
-    (for any other, a rig rebuilt by a transformation included)."""
-    return _TWINS.get(id(rig))
+    """The twin `Rig.build(..., ladder=...)` kept for this rig, or None: for a rig
+    rebuilt with any other array (`jax.tree.map`, new weights) it would be stale."""
+    if "twin" not in rig.programs.kept:
+        return None
+    (leaves, structure), twin = rig.programs.kept["twin"]
+    now, now_structure = jax.tree.flatten(rig)
+    same = now_structure == structure and all(a is b for a, b in zip(now, leaves))
+    return twin if same else None
 
 
 def cut_factor(padded: DenseFactor, twin_energy, energy) -> DenseFactor:

@@ -23,7 +23,6 @@ import numpy as np
 from ..core import is_whole_number, to_device
 from ..geometry import barycentric_coordinates, locate_points, points_to_local
 from ._handles import as_point
-from ._programs import note_size
 
 # The width of a row of `C` that can hold a pin inside a control triangle.
 _PIN_WIDTH = 3
@@ -76,7 +75,6 @@ def with_spare_pins(rig, count: Any):
          jnp.concatenate([rig.shape_mesh.handles, more]),
          jnp.concatenate([rig.control_mesh.handles, more]),
          jnp.concatenate([rig.turns, jnp.zeros((rig.turns.shape[0], count), dtype)], axis=1)))
-    note_size(rig)
     return rig
 
 

@@ -12,12 +12,16 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from ..core import (
     JittableModule,
+    Programs,
     as_array,
     as_points,
     check_targets,
+    compiled_by,
     finite_when_traced,
     is_real_number,
+    is_traced,
     kind_of,
+    programs_field,
     refusing_removed,
     to_device,
     whole_number,
@@ -58,7 +62,6 @@ from . import _pins
 from ._control import PaperControl, as_control
 from ._handles import Handles, check_handles, make_handles, pin
 from ._ladder import SizeLadder, cut_factor, keep_twin, padded_twin, twin_parts
-from ._programs import note_size
 from ._stack import pad_rows, stack_rigs
 from ._start import STARTS, start_vertices, turn_weights
 
@@ -325,6 +328,8 @@ class Rig(JittableModule):
         frame: the map between the user's coordinates and the rig's.
         turns: `(c, r)` harmonic weights that spread the turn of each pinned row (its
             bone's) over the control vertices, for the turned start (`Rig.start`).
+        programs: what the rig compiled and keeps for itself (`mvcjax.core.Programs`:
+            no leaves, no part of its structure); it goes with the rig.
     """
 
     shape_mesh: ShapeMesh
@@ -335,6 +340,7 @@ class Rig(JittableModule):
     factor: AbstractFactor
     frame: Frame
     turns: Float[Array, "c r"]
+    programs: Programs = programs_field()
 
     @classmethod
     @refusing_removed(**{key: "control=mvcjax.PaperControl(spacing=..., margin=...)"
@@ -432,15 +438,12 @@ class Rig(JittableModule):
             turns=_array(turn_weights(control_vertices, control_faces, control_pinned), dtype),
         )
         if ladder is None or not factor.is_dense(len(control_vertices)):
-            rig = cls(**parts, factor=factor(energy))
-            note_size(rig)  # a bounded number of sizes' programs kept (`_programs`)
-            return rig
+            return cls(**parts, factor=factor(energy))
         # The factor is cut from the twin's: compiled once per rung, not per rig.
         twin_factor, twin_energy, finish = twin_parts(parts, ladder)
         rig = cls(**parts, factor=cut_factor(twin_factor, twin_energy, energy))
         twin = finish(rig)
-        note_size(twin)
-        keep_twin(rig, twin)  # not a field: no transformation keeps it
+        keep_twin(rig, twin)  # kept with the rig, in `rig.programs`
         return rig
 
     @classmethod
@@ -517,14 +520,14 @@ class Rig(JittableModule):
                                               weights.astype(self.energy.rest.dtype),
                                               is_leaf=lambda x: x is None))
         same_terms = weights.terms() == self.energy.weights.terms()
-        if not same_terms and _traced(weights):
+        if not same_terms and is_traced(weights):
             raise ValueError(
                 f"with_weights under jit or grad keeps the rig's terms "
                 f"{self.energy.weights.terms()}; these weights have {weights.terms()} (a "
                 "weight of None leaves its term out). Call with_weights outside the "
                 "transformation to change which terms the energy has.")
         twin = padded_twin(self)
-        if twin is None or not same_terms or _traced(weights):
+        if twin is None or not same_terms or is_traced(weights):
             factor = self.factor.rebuild(energy, same_terms)
             return eqx.tree_at(lambda r: (r.energy, r.factor), self, (energy, factor))
         # The twin's factor, rebuilt by its program, and the rig's cut from it.
@@ -777,28 +780,6 @@ def solve_in_frame(rig: Rig, targets, solver: AbstractSolver, init):
     return vertices, info.rescaled(rig.frame.scale)
 
 
-def _traced(*trees) -> bool:
-    return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(trees))
-
-
-def compiled_when_eager(fn):
-    """`fn(rig, targets, solver, init)`, compiled with the rig as an argument when called
-    outside any transformation, inline inside one (the caller's `jit` compiles it).
-
-    Eager calls would otherwise run op by op, compiling every loop afresh, and keep
-    those programs, each holding memory maps, until a long session runs out. As an
-    argument, never closed over, a new rig of the same sizes reuses the program. Inside
-    a transformation a nested `jit` is no faster, and jaxopt's implicit gradients leak a
-    tracer through one.
-    """
-    compiled = eqx.filter_jit(fn)
-
-    def call(rig, targets, solver, init):
-        return (fn if _traced(rig, targets, init) else compiled)(rig, targets, solver, init)
-
-    return call
-
-
 def _as_twin(rows):
     """`fn(rig, targets, solver, init)` run, for a rig built with a `SizeLadder` and
     called outside any transformation, on its padded twin (whose program the rigs on the
@@ -807,7 +788,7 @@ def _as_twin(rows):
     def wrap(fn):
         def call(rig, targets, solver, init):
             twin = padded_twin(rig)
-            if (twin is None or _traced(rig, targets, init)
+            if (twin is None or is_traced(rig, targets, init)
                     or (not isinstance(init, str) and np.shape(init) != rig.energy.rest.shape)):
                 return fn(rig, targets, solver, init)
             if not isinstance(init, str):  # padded vertices start on vertex 0
@@ -822,14 +803,14 @@ def _as_twin(rows):
 
 
 @_as_twin(lambda rig: rig.energy.rest.shape[0])
-@compiled_when_eager
+@compiled_by(inline_when_traced=True)
 def _solve(rig: Rig, targets, solver: AbstractSolver, init):
     vertices, info = solve_in_frame(rig, targets, solver, init)
     return rig.frame.to_world(vertices), info
 
 
 @_as_twin(lambda rig: rig.shape_mesh.vertices.shape[0])
-@compiled_when_eager
+@compiled_by(inline_when_traced=True)
 def _deform(rig: Rig, targets, solver: AbstractSolver, init):
     vertices, info = solve_in_frame(rig, targets, solver, init)
     return rig.skinning(vertices, rig.frame), info

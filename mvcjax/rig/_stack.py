@@ -28,7 +28,6 @@ import numpy as np
 from ..core import to_device
 from ..energy import DenseFactor, dense_factor, local_stencil, transpose_table
 from ..geometry import BLOCK_ROWS, Skinning, block_width_limit, pack_blocks, pack_rows, tile_rows
-from ._programs import note_size
 
 # Past this many bytes of dense factors in one stack, stacking says so instead of
 # allocating them (a dense `G` grows with the square of the control vertices).
@@ -292,7 +291,6 @@ def stack_rigs(rigs: Any, like: Any, kind: type):
     padded = [pad_rig(r, sizes, s, f, e)
               for r, s, f, e in zip(rigs, skinnings, factors, energies)]
     stack = stacked(padded)
-    note_size(stack)  # a bounded number of sizes' programs kept (`_programs`)
     return stack
 
 
