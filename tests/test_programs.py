@@ -3,7 +3,10 @@ last of them (once `RECENT` newer programs have run), and nothing else of the pr
 touched (the user's own compiled functions stay compiled)."""
 
 import contextlib
+import copy
 import gc
+import pickle
+import weakref
 
 import jax
 import numpy as np
@@ -134,3 +137,22 @@ def test_rigs_of_new_sizes_keep_no_programs_and_leave_the_users_compiled(
     first_mb = max(mb for _, mb in counts[:half])
     assert max(m for m, _ in counts[half:]) <= first_maps + 40, counts
     assert max(mb for _, mb in counts[half:]) <= first_mb + 100, counts
+
+
+def test_what_a_rig_keeps_is_no_part_of_its_pytree():
+    rig = build(5)
+    pose(rig)
+    assert len(rig.programs._ran) > 0
+    # No leaves, equal structures; transformations and copies carry the rig, not its
+    # programs' identity in any structure.
+    assert not any(isinstance(leaf, _programs.Programs) for leaf in jax.tree.leaves(rig))
+    assert jax.tree.structure(rig) == jax.tree.structure(build(5))
+    assert jax.tree.map(lambda a: a, rig).programs is rig.programs
+    for copied in (copy.deepcopy(rig), pickle.loads(pickle.dumps(rig))):
+        assert copied.programs is not rig.programs and not copied.programs._ran
+        np.testing.assert_array_equal(np.asarray(pose(copied)), np.asarray(pose(rig)))
+    # Nothing else holds it: it goes with the rig.
+    programs = weakref.ref(rig.programs)
+    del rig
+    gc.collect()
+    assert programs() is None

@@ -104,8 +104,11 @@ class Programs:
         kwargs = dict(kwargs)
         donated = kwargs.pop(donate) if donate else None
         arrays, static = _split((args, kwargs))
-        key = hash((fn, donate, static, jax.tree.map(lambda a: (a.shape, a.dtype), donated),
-                    tuple(None if a is None else (a.shape, a.dtype) for a in arrays)))
+        # The sizes by their hash, so that no key holds on to a structure; two sizes of
+        # one hash would share a `jax.jit`, which tells them apart itself.
+        key = (fn, donate, hash((static, jax.tree.map(lambda a: (a.shape, a.dtype), donated),
+                                 tuple(None if a is None else (a.shape, a.dtype)
+                                       for a in arrays))))
         compiled = self._ran.get(key) or _SHARED.get(key) or _Compiled(fn, donate)
         self._ran[key] = _SHARED[key] = _RECENT[key] = compiled
         _RECENT.move_to_end(key)
