@@ -10,7 +10,6 @@ import weakref
 
 import jax
 import numpy as np
-import pytest
 
 import mvcjax
 from mvcjax.core import _programs
@@ -118,12 +117,9 @@ def rigs_of_new_sizes(count):
     return counts
 
 
-@pytest.mark.parametrize("count, recent", [
-    (16, 4), pytest.param(200, _programs.RECENT, marks=pytest.mark.slow),
-])
-def test_rigs_of_new_sizes_keep_no_programs_and_leave_the_users_compiled(
-        caplog, monkeypatch, count, recent):
-    monkeypatch.setattr(_programs, "RECENT", recent)
+def test_rigs_of_new_sizes_keep_no_programs_and_leave_the_users_compiled(caplog, monkeypatch):
+    count = 16
+    monkeypatch.setattr(_programs, "RECENT", 4)
     # The user's own jitted function, compiled before: it is not compiled again after.
     user = jax.jit(lambda x: x * 2.0 + 1.0)
     user(np.ones(3, np.float32))
