@@ -11,7 +11,6 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Float
 
-from .character import Character
 from .core import (
     NOT_FINITE_TARGETS,
     as_array,
@@ -23,7 +22,7 @@ from .core import (
     whole_number,
 )
 from .geometry import skin_frames_into
-from .rig import Rig, padded_twin, solve_in_frame
+from .rig import AbstractRig, Rig, padded_twin
 from .solvers import DEFAULT_SOLVER, AbstractSolver, check_solver
 
 
@@ -37,40 +36,40 @@ def _pad_frames(targets, multiple: int):
     return jnp.concatenate([targets, jnp.repeat(targets[-1:], padded - frames, 0)])
 
 
-def _solve_chunked(rig: Rig, targets, solver: AbstractSolver, chunk: int):
-    """Control vertices in the rig's frame, `chunk` frames at a time, each chunk a vmap
-    of the single frame's solve (the solver's batching rule)."""
+def _solve_chunked(rig: AbstractRig, targets, solver: AbstractSolver, chunk: int):
+    """Control vertices (the rig's own: a character's a tuple of parts), `chunk` frames
+    at a time, each chunk a vmap of the single frame's solve (the solver's batching
+    rule)."""
     frames = targets.shape[0]
     chunk = min(chunk, frames)
     targets = _pad_frames(targets, chunk)
-    control = jax.lax.map(jax.vmap(lambda t: solve_in_frame(rig, t, solver, "turned")[0]),
+    control = jax.lax.map(jax.vmap(lambda t: rig.solve(t, solver)),
                           targets.reshape(-1, chunk, *targets.shape[1:]))
-    return control.reshape(-1, *control.shape[2:])[:frames]
+    return jax.tree.map(lambda c: c.reshape(-1, *c.shape[2:])[:frames], control)
 
 
-def _solve_in_sequence(rig: Rig, targets, solver: AbstractSolver):
-    """Control vertices in the rig's frame, frame after frame, each solved from the
-    pose before it (the first from its turned start)."""
+def _solve_in_sequence(rig: AbstractRig, targets, solver: AbstractSolver):
+    """Control vertices, frame after frame, each solved from the pose before it (the
+    first from its turned start)."""
     def step(previous, t):
-        local = solve_in_frame(rig, t, solver, rig.frame.to_world(previous))[0]
-        return local, local
+        control = rig.solve(t, solver, init=previous)
+        return rig.joined(control), control
 
-    first = rig.frame.to_local(rig.start(targets[0]))
-    return jax.lax.scan(step, first, targets)[1]
+    return jax.lax.scan(step, rig.start(targets[0]), targets)[1]
 
 
-def _deform_chunked(rig: Rig, targets, solver: AbstractSolver, chunk: int,
+def _deform_chunked(rig: AbstractRig, targets, solver: AbstractSolver, chunk: int,
                     warm_start: bool = False):
     # The skinning maps over all frames at once (its rule takes them a few at a time),
     # writing the result in place: skinning inside each chunk would copy every chunk's
     # result once more.
     control = (_solve_in_sequence(rig, targets, solver) if warm_start
                else _solve_chunked(rig, targets, solver, chunk))
-    return jax.vmap(lambda v: rig.skinning(v, rig.frame))(control)
+    return jax.vmap(rig.skin)(control)
 
 
 @compiled_by()
-def _deform_one_device(rig: Rig, targets, solver: AbstractSolver, chunk: int,
+def _deform_one_device(rig: AbstractRig, targets, solver: AbstractSolver, chunk: int,
                        warm_start: bool):
     return _deform_chunked(rig, targets, solver, chunk, warm_start)
 
@@ -79,12 +78,16 @@ def _deform_one_device(rig: Rig, targets, solver: AbstractSolver, chunk: int,
 def _deform_into(rig: Rig, targets, solver: AbstractSolver, chunk: int, *, out):
     # Donated, `out` holds the result (XLA aliases a donated input to an output of its
     # shape), and the skinning writes into it group by group.
-    control = _solve_chunked(rig, targets, solver, chunk)
+    control = rig.frame.to_local(_solve_chunked(rig, targets, solver, chunk))
     return skin_frames_into(rig.skinning, control, rig.frame, out)
 
 
-def _check_out(out, frames: int, rig: Rig):
+def _check_out(out, frames: int, rig: AbstractRig):
     """`out` fit to hold the result, or an error that says why not."""
+    if not isinstance(rig, Rig):  # posed into one array: a rig's single mesh
+        raise ValueError(f"out holds the frames of one mesh, a Rig's; a "
+                         f"{type(rig).__name__}'s parts are posed into new arrays: leave "
+                         "out out=.")
     want = (frames, rig.shape_mesh.vertices.shape[0], 2)
     dtype = rig.energy.rest.dtype
     if not isinstance(out, jax.Array) or isinstance(out, jax.core.Tracer):
@@ -101,7 +104,7 @@ def _check_out(out, frames: int, rig: Rig):
 
 
 @compiled_by()
-def _deform_sharded(rig: Rig, targets, solver: AbstractSolver, chunk: int, mesh: Mesh):
+def _deform_sharded(rig: AbstractRig, targets, solver: AbstractSolver, chunk: int, mesh: Mesh):
     # shard_map: each device maps over its own frames (a lax.map over a sharded axis
     # would gather the frames first).
     return jax.shard_map(
@@ -115,31 +118,12 @@ def _deform_sharded(rig: Rig, targets, solver: AbstractSolver, chunk: int, mesh:
     )(rig, targets)
 
 
-@compiled_by()
-def _deform_character(character: Character, targets, solver: AbstractSolver, chunk: int):
-    # Part by part, parents first, each part's frames solved as a rig's are.
-    control, out = [None] * len(character.parts), [None] * len(character.parts)
-    for i in character.order:
-        part, parent = character.parts[i], character.parents[i]
-        carried = None if parent < 0 else control[parent]
-        own = jax.vmap(lambda t, c, i=i: character.part_targets(i, t, c))(targets, carried)
-        local = _solve_chunked(part, own, solver, chunk)
-        control[i] = part.frame.to_world(local)
-        out[i] = jax.vmap(lambda v, part=part: part.skinning(v, part.frame))(local)
-    return tuple(out)
-
-
-def _check_placement(devices, out, character: bool, warm_start) -> list:
+def _check_placement(devices, out, warm_start) -> list:
     """The devices to pose on (the default device for None), where `deform_frames` can
-    pose this way: a Character, or frames solved in order, on one device into a new
-    array."""
-    if character and (out is not None or devices is not None):
-        raise ValueError("deform_frames poses a Character on one device and into new "
-                         "arrays: leave out out= and devices=.")
-    if warm_start and (character or out is not None or (devices and len(devices) > 1)):
-        raise ValueError("warm_start=True solves a rig's frames in order on one device, into "
-                         "a new array: leave out out= and devices= (and pose a Character "
-                         "without it).")
+    pose this way: frames solved in order, on one device into a new array."""
+    if warm_start and (out is not None or (devices and len(devices) > 1)):
+        raise ValueError("warm_start=True solves the frames in order on one device, into a "
+                         "new array: leave out out= and devices=.")
     return [jax.local_devices()[0]] if devices is None else devices
 
 
@@ -176,7 +160,7 @@ def _checked_frames(targets, h: int):
     return targets
 
 
-def _deform_over_devices(rig: Rig, targets, solver: AbstractSolver, chunk: int, devices):
+def _deform_over_devices(rig: AbstractRig, targets, solver: AbstractSolver, chunk: int, devices):
     """The frames split evenly between `devices` (padded to a multiple of their count),
     the rig replicated, and the result back in frame order without the padding."""
     frames = targets.shape[0]
@@ -185,11 +169,12 @@ def _deform_over_devices(rig: Rig, targets, solver: AbstractSolver, chunk: int, 
     mesh = Mesh(np.asarray(devices), ("frames",))
     targets = jax.device_put(targets, NamedSharding(mesh, PartitionSpec("frames")))
     rig = jax.device_put(rig, NamedSharding(mesh, PartitionSpec()))
-    return _deform_sharded(rig, targets, solver, min(chunk, per_device), mesh)[:frames]
+    posed = _deform_sharded(rig, targets, solver, min(chunk, per_device), mesh)
+    return jax.tree.map(lambda p: p[:frames], posed)
 
 
 def deform_frames(
-    rig: Rig | Character,
+    rig: AbstractRig,
     targets: Any,
     solver: Any = DEFAULT_SOLVER,
     *,
@@ -209,7 +194,7 @@ def deform_frames(
 
     Args:
         rig: the rig, or a `Character` (then the result is a tuple, a part's
-            `(frames, n_i, 2)` each; one device, no `out`).
+            `(frames, n_i, 2)` each, and no `out`).
         targets: `(frames, h, 2)` handle targets, one row of targets per frame.
         solver: the solver of every frame (default: `rig.deform`'s), each from the
             turned start (`Rig.start`).
@@ -227,7 +212,7 @@ def deform_frames(
         warm_start: solve the frames in order, each from the pose before it (the first
             from its turned start), one after another instead of `chunk` at a time: for
             an animation's frames with `FoldFree`, whose every start is then a pose
-            without folds near the answer. A rig on one device, without `out`.
+            without folds near the answer. On one device, without `out`.
 
     Returns:
         `(frames, n, 2)` deformed shape-mesh vertices.
@@ -236,7 +221,6 @@ def deform_frames(
     refused by index. Under `jax.jit` the values are not known yet: they are checked when
     the program runs, which then raises the same error without the index.
     """
-    character = isinstance(rig, Character)
     h = rig.handles.count
     dtype = rig.handles.rest.dtype
     check_solver(solver)
@@ -244,11 +228,9 @@ def deform_frames(
     chunk = whole_number(chunk, "chunk", what=" of frames")
     if targets.shape[0] == 0:
         raise ValueError("targets hold no frames (shape (0, h, 2)); give at least one frame.")
-    devices = _check_placement(as_devices(devices), out, character, warm_start)
+    devices = _check_placement(as_devices(devices), out, warm_start)
     targets = targets.astype(dtype)
     frames = targets.shape[0]
-    if character:
-        return _deform_character(rig, targets, solver, min(chunk, frames))
     twin = padded_twin(rig)
     if (out is None and len(devices) == 1 and twin is not None
             and not isinstance(targets, jax.core.Tracer)):

@@ -1,17 +1,16 @@
 """Fit a deformation to a picture: handle targets whose rendered pose matches a target
 picture, by least squares on the pixels.
 
-The loss compares `renderer(rig.deform(targets))` with the picture, pixel by pixel. Which
-triangle a pixel shows is decided without gradients (`_render.py`); the gradients come
-from the shading: a textured interior moves its texture under the pixels, and the
-antialiased boundary edges cover a pixel by a linear ramp of its centre's distance to
-the edge, so that the silhouette moves the coverage of the pixels it crosses. That ramp
-is one pixel wide: the sharp loss is kinked at every pixel, and flat where moving a
-part changes nothing it counts (a thin part that no longer overlaps its place in the
-target). Blurring both pictures with a Gaussian of `blur` pixels spreads every edge
-over a few `blur`s, so the slopes overlap and reach that far; the fit runs from a wide
-blur down to none (coarse to fine).
-"""
+The loss compares the pose `rig.deform(targets)`, drawn by the renderer, with the
+picture, pixel by pixel. Which triangle a pixel shows is decided without gradients
+(`_render.py`); the gradients come from the shading: a textured interior moves its
+texture under the pixels, and the antialiased boundary edges cover a pixel by a linear
+ramp of its centre's distance to the edge, so that the silhouette moves the coverage of
+the pixels it crosses. That ramp is one pixel wide: the sharp loss is kinked at every
+pixel, and flat where moving a part changes nothing it counts (a thin part that no
+longer overlaps its place in the target). Blurring both pictures with a Gaussian of
+`blur` pixels spreads every edge over a few `blur`s, so the slopes overlap and reach
+that far; the fit runs from a wide blur down to none (coarse to fine)."""
 
 from __future__ import annotations
 
@@ -25,10 +24,9 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
-from .character import Character, CharacterRenderer
 from .core import compiled_by, kind_of, whole_number
 from .rendering import Renderer, as_picture, check_drawn_mesh, in_window
-from .rig import Rig
+from .rig import AbstractRig
 from .solvers import DEFAULT_SOLVER, AbstractSolver, check_solver
 
 _CHANNELS = ("rgba", "alpha")
@@ -76,20 +74,18 @@ def _check_channels(channels) -> str:
     return channels
 
 
-def _check_pair(rig, renderer) -> None:
-    if isinstance(rig, Character):
-        if not isinstance(renderer, CharacterRenderer):
-            raise TypeError(f"renderer must be the character's, Renderer.build(character, "
-                            f"layers), got {type(renderer).__name__}.")
-        check_drawn_mesh(renderer.mesh, rig.shape_mesh.vertices, rig.shape_mesh.faces)
-        return
-    if not isinstance(rig, Rig):
+def _check_pair(rig, renderer) -> Renderer:
+    """The renderer of `rig`'s whole shape mesh (a character's parts joined, in its draw
+    order), or an error naming what to pass."""
+    if not isinstance(rig, AbstractRig):
         raise TypeError(f"rig must be an mvcjax.Rig or an mvcjax.Character, got "
                         f"{type(rig).__name__}.")
-    if not isinstance(renderer, Renderer):
-        raise TypeError(f"renderer must be an mvcjax.Renderer (Renderer.build(rig, ...)), got "
-                        f"{type(renderer).__name__}.")
-    check_drawn_mesh(renderer, rig.shape_mesh.vertices, rig.shape_mesh.faces)
+    drawn = getattr(renderer, "mesh", None)
+    if not isinstance(drawn, Renderer):
+        raise TypeError(f"renderer must be an mvcjax.Renderer (Renderer.build(rig, ...), or "
+                        f"Renderer.build(character, layers)), got {type(renderer).__name__}.")
+    check_drawn_mesh(drawn, rig.shape_mesh.vertices, rig.shape_mesh.faces)
+    return drawn
 
 
 def _check_solver(solver) -> AbstractSolver:
@@ -138,7 +134,7 @@ def _check_in_view(rig, renderer, targets) -> None:
                       f"go; {hint}.", stacklevel=3)
 
 
-def _prepare_picture(picture, renderer: Renderer | CharacterRenderer, channels: str) -> Array:
+def _prepare_picture(picture, renderer: Any, channels: str) -> Array:
     """The target as the loss compares it: `(rows, cols, 4)` premultiplied RGBA (a mask
     is its alpha, black), in the renderer's dtype. Concrete pictures may be anything
     `load_image` reads (alpha: also a `(rows, cols)` mask); traced ones must already be
@@ -224,7 +220,7 @@ def _weights(channels: str, dtype):
 
 
 def _residuals(rig, renderer, solver, weights, targets, target_picture, blur):
-    drawn = _premultiplied(renderer(rig.deform(targets, solver)))
+    drawn = _premultiplied(renderer(rig.joined(rig.deform(targets, solver))))
     # Per pixel and channel, unscaled: the solver's damping and tolerances then meet
     # numbers of order one, whatever the picture's size. Blurring is linear, so
     # blurring the difference is the difference of the blurred pictures.
@@ -232,8 +228,8 @@ def _residuals(rig, renderer, solver, weights, targets, target_picture, blur):
 
 
 def image_loss(
-    rig: Rig | Character,
-    renderer: Renderer | CharacterRenderer,
+    rig: AbstractRig,
+    renderer: Any,
     targets: Real[ArrayLike, "h 2"],
     picture: Any,
     *,
@@ -269,7 +265,7 @@ def image_loss(
     Returns:
         The scalar loss, in the renderer's dtype.
     """
-    _check_pair(rig, renderer)
+    renderer = _check_pair(rig, renderer)
     channels = _check_channels(channels)
     solver = _check_solver(solver)
     target_picture = _prepare_picture(picture, renderer, channels)
@@ -419,8 +415,8 @@ def _fit_stages(rig, renderer, solver, weights, method, steps: int, start, targe
 
 
 def fit_targets(
-    rig: Rig | Character,
-    renderer: Renderer | CharacterRenderer,
+    rig: AbstractRig,
+    renderer: Any,
     picture: Any,
     *,
     init: Real[ArrayLike, "h 2"] | None = None,
@@ -476,7 +472,7 @@ def fit_targets(
         A `FitResult`: the targets, the loss at every step, and whether each stage
         converged.
     """
-    _check_pair(rig, renderer)
+    renderer = _check_pair(rig, renderer)
     channels = _check_channels(channels)
     solver = _check_solver(solver)
     steps = whole_number(steps, "steps", what=" (the most solver steps per stage)")

@@ -32,38 +32,36 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._animation import deform_frames
-from .character import Character, CharacterRenderer
 from .core import is_real_number, is_whole_number
 from .export import write_animation
 from .geometry import barycentric_coordinates, boundary_loops, edges, locate_points, signed_areas
 from .rendering import Renderer, check_drawn_mesh, check_window, fit_window, in_window
-from .rig import Rig, pin_state, pinned_row, with_pin_state, with_rows
+from .rig import AbstractRig, pin_state, pinned_row, with_pin_state, with_rows
 from .solvers import DEFAULT_SOLVER, AbstractSolver, FoldFree, check_solver
 
 _HANDLE_STYLE = {"marker": "o", "markersize": 9, "color": "tab:red", "markeredgecolor": "white",
                  "markeredgewidth": 1.2, "linestyle": "none"}
-# The figure's help line: the mouse and the keys (`Posing._on_key`).
-_HELP = ("drag a red dot · click the shape: add a pin · right-click a dot: remove it\n"
-         "keys: u undo, r reset, m mesh, space record")
-_CHARACTER_HINT = ("a character's pins are its handles: adding or removing one needs\n"
-                   "a new character (mvcjax.Character.build), then interact again")
+# The figure's help line: the mouse and the keys (`Posing._on_key`), with pins by click
+# or without.
+_KEYS = "keys: u undo, r reset, m mesh, space record"
+_HELP = "drag a red dot · click the shape: add a pin · right-click a dot: remove it\n" + _KEYS
+_DRAG_HELP = "drag a red dot\n" + _KEYS
+_NO_PINS_HINT = ("no spare pins: interact(rig, spare_pins=8) adds pins by click; a\n"
+                 "character's pins are its handles (a new one: mvcjax.Character.build)")
 _FOLD_STYLE = {"facecolor": (0.85, 0.05, 0.05, 0.55), "edgecolor": (0.85, 0.05, 0.05, 0.9),
                "linewidth": 0.6}
 _HINT_COLOR = "#b01010"
 _HINT_FONT_POINTS = 8.0
 
 
-def _pose(rig: Rig | Character, renderer: Renderer | None, solver: AbstractSolver,
+def _pose(rig: AbstractRig, renderer: Renderer | None, solver: AbstractSolver,
           rest_sign: np.ndarray, targets: Float[Array, "h 2"], init: Any = "turned"):
     """The control and shape meshes for these targets, solved from `init`; with a
     renderer, the picture as `uint8` RGBA (a quarter of the bytes to hand to matplotlib,
     which draws those fastest); which shape triangles are flipped (their signed area's
     sign is not `rest_sign`, as `flipped_triangles` counts them), and how many."""
-    control = rig.solve(targets, solver) if isinstance(init, str) else rig.solve(
-        targets, solver, init=init)
-    shape = rig.skin(control)
-    if isinstance(rig, Character):  # its parts, drawn as one mesh
-        control, shape = jnp.concatenate(control), jnp.concatenate(shape)
+    control = rig.solve(targets, solver, init=init)
+    control, shape = rig.joined(control), rig.joined(rig.skin(control))  # drawn as one mesh
     flipped = jnp.sign(signed_areas(shape, rig.shape_mesh.faces)) != rest_sign
     folds = jnp.sum(flipped, dtype=jnp.int32)
     if renderer is None:
@@ -143,7 +141,7 @@ def _fold_words(folds: int, solver: AbstractSolver) -> str:
 
 def _check_posing_options(rig, solver, pick_radius, margin, ax, spare_pins) -> None:
     """`Posing`'s arguments checked, with errors naming the one to fix."""
-    if not isinstance(rig, (Rig, Character)):
+    if not isinstance(rig, AbstractRig):
         raise TypeError(f"rig must be an mvcjax.Rig (mvcjax.Rig.build(shape, handles)) "
                         f"or an mvcjax.Character, got {type(rig).__name__}.")
     check_solver(solver)
@@ -206,9 +204,10 @@ class Posing:
         self._given, self.solver = rig, solver
         # A character's parts are rigs of their own: it keeps the handles it was built with.
         self._own_rows = rig.handles.count
-        self._rig = (rig.with_spare_pins(int(spare_pins))
-                     if spare_pins and isinstance(rig, Rig) else rig)
-        self._kept: tuple[Any, Rig | Character] | None = None
+        spare = rig.with_spare_pins(int(spare_pins)) if spare_pins else rig
+        self._pinning = spare is not rig
+        self._rig = spare
+        self._kept: tuple[Any, AbstractRig] | None = None
         self._control_mesh_wanted = bool(control_mesh)
         self.show_folds = bool(show_folds)
         rest = np.asarray(rig.shape_mesh.vertices, np.float64)
@@ -224,7 +223,7 @@ class Posing:
         # `FoldFree` starts each drag step from the pose before it (the rest mesh at
         # first): a start without folds near the answer, where the turned start of a
         # pose that folds would send it back to the rigid one.
-        self._warm = isinstance(solver, FoldFree) and isinstance(rig, Rig)
+        self._warm = isinstance(solver, FoldFree)
         self._dtype = np.dtype(rig.handles.rest.dtype)
         self._pick_radius = float(pick_radius)
         self._bones = np.asarray(rig.handles.bones, np.int64).reshape(-1, 2)
@@ -282,7 +281,7 @@ class Posing:
         elif renderer is not None and (image is not None or render_options):
             raise ValueError("pass either renderer= or image= (and render options), not both.")
         self.renderer = renderer
-        renderer = renderer.mesh if isinstance(renderer, CharacterRenderer) else renderer
+        renderer = renderer.mesh if renderer is not None else None
         if renderer is not None:
             check_drawn_mesh(renderer, rig.shape_mesh.vertices, rig.shape_mesh.faces)
         return renderer
@@ -290,17 +289,17 @@ class Posing:
     # ---- what the user keeps -----------------------------------------------------------
 
     @property
-    def _rig(self) -> Rig | Character:
+    def _rig(self) -> AbstractRig:
         return self._session_rig
 
     @_rig.setter
-    def _rig(self, rig: Rig | Character) -> None:
+    def _rig(self, rig: AbstractRig) -> None:
         # The rows that pin, on the host: read at every update. The pins' state is what
         # undo and recordings keep (a few small arrays; a rig has its own factor).
         self._session_rig, self._active = rig, np.asarray(rig.handles.active)
-        self._pins = pin_state(rig) if isinstance(rig, Rig) else None
+        self._pins = pin_state(rig) if self._pinning else None
 
-    def _with_pins(self, pins) -> Rig | Character:
+    def _with_pins(self, pins) -> AbstractRig:
         """The session's rig with the pins of `pins` (a `pin_state`)."""
         return self._rig if pins is self._pins else with_pin_state(self._rig, pins)
 
@@ -312,7 +311,7 @@ class Posing:
                                self._own_rows + np.flatnonzero(active[self._own_rows:])])
 
     @property
-    def rig(self) -> Rig | Character:
+    def rig(self) -> AbstractRig:
         if self._rig is self._given:
             return self._given
         if self._kept is None or self._kept[0] is not self._rig:
@@ -393,10 +392,9 @@ class Posing:
         runs, start = [], 0
         for end in range(1, len(pins) + 1):
             if end == len(pins) or pins[end] is not pins[start]:
-                frames = deform_frames(self._with_pins(pins[start]),
-                                       targets[start:end].astype(self._dtype), self.solver)
-                runs.append(jnp.concatenate(frames, axis=1) if isinstance(frames, tuple)
-                            else frames)
+                rig = self._with_pins(pins[start])
+                runs.append(rig.joined(deform_frames(
+                    rig, targets[start:end].astype(self._dtype), self.solver)))
                 start = end
         return jnp.concatenate(runs)
 
@@ -411,9 +409,7 @@ class Posing:
         if renderer is None:
             mesh = self._given.shape_mesh
             renderer = Renderer.build((mesh.vertices, mesh.faces), window=self.window)
-        if isinstance(renderer, CharacterRenderer):
-            renderer = renderer.mesh
-        write_animation(path, renderer.frames(self.frames(fps)), fps=fps, **options)
+        write_animation(path, renderer.mesh.frames(self.frames(fps)), fps=fps, **options)
 
     def set_targets(self, targets: Any) -> None:
         """Move every target of `rig` at once (e.g. from code, or to replay a pose) and
@@ -459,7 +455,7 @@ class Posing:
 
     def _pin(self, at_rest: np.ndarray) -> int:
         """`add_pin` of the spot at rest point `at_rest`."""
-        if not isinstance(self._rig, Rig) or self._rig is self._given:
+        if not self._pinning:
             raise ValueError("this session has no spare pins: interact(rig, spare_pins=8) "
                              "with an mvcjax.Rig adds pins by click (a Character's pins "
                              "are the handles it was built with).")
@@ -521,7 +517,7 @@ class Posing:
         breaks = np.cumsum([len(loop) + 1 for loop in self._loops])[:-1]
         for part in np.split(outline, breaks):
             ax.plot(part[:, 0], part[:, 1], color="0.75", linewidth=0.8, zorder=1)
-        ax.set_title(_HELP, fontsize=8)
+        ax.set_title(_HELP if self._pinning else _DRAG_HELP, fontsize=8)
         animated = {"animated": True}
         if self.renderer is not None:
             self._image = _picture_class()(ax, extent=(xmin, xmax, ymin, ymax), origin="upper",
@@ -691,12 +687,11 @@ class Posing:
         elif event.button == 1 and event.xdata is not None:
             self._add_pin_at(np.array([event.xdata, event.ydata]), start)
         elif event.button == 3:
-            self._say(_HELP if isinstance(self._rig, Rig) else _CHARACTER_HINT)
+            self._say(_HELP if self._pinning else _NO_PINS_HINT)
 
     def _add_pin_at(self, point: np.ndarray, start: float) -> None:
-        if not isinstance(self._rig, Rig) or self._rig is self._given:
-            self._say(_CHARACTER_HINT if isinstance(self._rig, Character) else
-                      "pins by click need spare pins: interact(rig, spare_pins=8)")
+        if not self._pinning:
+            self._say(_NO_PINS_HINT)
             return
         at_rest = self._at_rest(point)
         if at_rest is None:
@@ -796,7 +791,7 @@ def _warn_if_no_window(figure) -> None:
             stacklevel=3)
 
 
-def _rigid_bone_pivots(rig: Rig | Character) -> dict[int, tuple[int, float]]:
+def _rigid_bone_pivots(rig: AbstractRig) -> dict[int, tuple[int, float]]:
     """For each target row that ends a rigid bone: the row of its other end, and the
     bone's rest length."""
     pivots = {}

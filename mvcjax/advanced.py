@@ -1,9 +1,9 @@
 """What a rig is made of, for those who extend mvcjax or study its method: the extension
-points (control meshes, factors, skinnings, solvers), the rig's internal data, the
-energy's terms as pure functions, the mean value coordinates themselves, the jaxopt
-solvers kept for comparison, the paper's skinning options, the types results come in
-(`SolveInfo`, `FitResult`, `CharacterRenderer`, `Layer`) and the metrics and textures
-the benchmarks use.
+points (control meshes, factors, skinnings, solvers, `AbstractRig`: what a rig and a
+character both offer), the rig's internal data, the energy's terms as pure functions,
+the mean value coordinates themselves, the jaxopt solvers kept for comparison, the
+paper's skinning options, the types results come in (`SolveInfo`, `FitResult`,
+`CharacterRenderer`, `Layer`) and the metrics and textures the benchmarks use.
 
 Posing, rendering, exporting and fitting need none of it: those live in `mvcjax`.
 """
@@ -43,6 +43,7 @@ from .geometry import (
 from .rendering import checkerboard as checkerboard, core_depth as core_depth
 from .rig import (
     AbstractControl as AbstractControl,
+    AbstractRig as AbstractRig,
     ControlMesh as ControlMesh,
     Handles as Handles,
     ShapeMesh as ShapeMesh,

@@ -122,11 +122,18 @@ targets = rig.handle_positions[None] + rng.normal(scale=8.0, size=(10, 5, 2))
 one = mvcjax.deform_frames(rig, targets, chunk=3)
 four = mvcjax.deform_frames(rig, targets, chunk=3, devices=jax.devices())
 assert four.shape == (10, *rig.shape_mesh.vertices.shape), four.shape
-print(float(jnp.abs(one - four).max()))
+character = mvcjax.Character.build(datasets.layered_figure(),
+                                   datasets.layered_figure_handles())
+wave = datasets.layered_figure_wave(6)
+parts = mvcjax.deform_frames(character, wave, chunk=2, devices=jax.devices())
+alone = mvcjax.deform_frames(character, wave, chunk=2)
+print(max(float(jnp.abs(one - four).max()),
+          *(float(jnp.abs(a - b).max()) for a, b in zip(parts, alone))))
 """
 
 
 def test_frames_sharded_over_four_devices_give_the_same_result():
+    # A rig's, and a character's (the same protocol).
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4",
            "JAX_PLATFORMS": "cpu"}
     out = subprocess.run([sys.executable, "-c", SHARDED], env=env, capture_output=True,

@@ -337,8 +337,13 @@ def test_fit_targets_finds_a_characters_pose_from_its_picture(character, layers,
     pixel = 4.0  # units per pixel
     for fitted, drawn in zip(character.deform(result.targets), character.deform(true)):
         assert float(jnp.max(jnp.abs(fitted - drawn))) < 0.25 * pixel
-    with pytest.raises(TypeError, match="renderer must be the character's"):
-        mvcjax.image_loss(character, renderer.mesh, true, picture)
+    # The renderer of the joined parts (in the layers' order) draws the same picture.
+    loss = mvcjax.image_loss(character, renderer, true, picture)
+    assert float(mvcjax.image_loss(character, renderer.mesh, true, picture)) == float(loss)
+    with pytest.raises(TypeError, match="renderer must be an mvcjax.Renderer"):
+        mvcjax.image_loss(character, layers, true, picture)
+    with pytest.raises(ValueError, match="renderer was built for"):
+        mvcjax.image_loss(character, mvcjax.Renderer.build(character.parts[0]), true, picture)
 
 
 def test_interact_drags_a_character_and_records_it(character, layers, tmp_path):
@@ -363,6 +368,9 @@ def test_interact_drags_a_character_and_records_it(character, layers, tmp_path):
             mouse(posing, "motion_notify", point)
         mouse(posing, "button_release", path[-1])
         assert posing.updates == len(path)
+        assert "add a pin" not in posing.axes.get_title()  # its pins are its handles
+        with pytest.raises(ValueError, match="no spare pins"):
+            posing.add_pin(posing.shape_vertices[0])
         expected = jnp.concatenate(character.deform(posing.targets))
         np.testing.assert_allclose(posing.shape_vertices, expected, atol=1e-3)
         drawn = mvcjax.export.to_uint8(posing.renderer(character.deform(posing.targets)))
@@ -400,3 +408,73 @@ def test_an_eager_deform_is_one_compiled_program(character, wave, caplog):
     expected = jax.jit(character.deform)(wave[5])
     for part, want in zip(again[-1], expected):
         np.testing.assert_allclose(part, want, rtol=0, atol=1e-3)
+
+
+def test_warm_started_frames_start_each_from_the_pose_before(character, wave):
+    # As a rig's (tests/test_animation.py): the first frame from the character's start,
+    # every part's turned start carried by its parent's.
+    solver = mvcjax.FoldFree()
+    frames = jnp.asarray(wave[:4])
+    posed = mvcjax.deform_frames(character, frames, solver, warm_start=True)
+    control = character.start(frames[0])
+    assert control.shape == character.control_mesh.vertices.shape
+    for k, targets in enumerate(frames):
+        solved = character.solve(targets, solver, init=control)
+        control = character.joined(solved)
+        for whole, part in zip(posed, character.skin(solved)):
+            np.testing.assert_allclose(whole[k], part, atol=1e-3)
+    flipped = mvcjax.flipped_triangles(character.shape_mesh.vertices,
+                                       character.joined(posed), character.shape_mesh.faces)
+    assert int(np.sum(flipped)) == 0
+
+
+def test_out_is_refused_for_a_character_with_what_to_do(character, posed, wave):
+    with pytest.raises(ValueError, match="leave out out="):
+        mvcjax.deform_frames(character, wave, out=jnp.zeros_like(character.joined(posed)))
+    with pytest.raises(ValueError, match="init must have the control mesh's shape"):
+        character.deform(wave[0], init=character.control_mesh.vertices[:-1])
+    with pytest.raises(ValueError, match="init must be one of"):
+        character.solve(wave[0], init="bent")
+
+
+@pytest.fixture(params=["rig", "character"])
+def subject(request, horse_rig32, character):
+    """Either kind of subject the tools take (`mvcjax.advanced.AbstractRig`)."""
+    return {"rig": horse_rig32, "character": character}[request.param]
+
+
+def test_a_rig_and_a_character_offer_one_protocol(subject):
+    assert isinstance(subject, mvcjax.advanced.AbstractRig)
+    targets = subject.handle_positions + 2.0
+    control = subject.solve(targets)
+    joined = subject.joined(subject.deform(targets))
+    assert joined.shape == subject.shape_mesh.vertices.shape
+    assert subject.joined(control).shape == subject.control_mesh.vertices.shape
+    np.testing.assert_allclose(subject.joined(subject.skin(control)), joined, atol=1e-3)
+    # From the joined control vertices, the solve is where it was.
+    again = subject.joined(subject.deform(targets, init=subject.joined(control)))
+    np.testing.assert_allclose(again, joined, atol=0.05)
+    assert subject.start(targets).shape == subject.control_mesh.vertices.shape
+    frames = subject.joined(mvcjax.deform_frames(subject, jnp.stack([targets, targets])))
+    np.testing.assert_allclose(frames[1], joined, atol=1e-3)
+    assert int(np.sum(mvcjax.flipped_triangles(subject.shape_mesh.vertices, joined,
+                                               subject.shape_mesh.faces))) == 0
+
+
+def test_interact_poses_either_from_the_pose_before_with_fold_free(subject):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    solver = mvcjax.FoldFree()
+    try:
+        with pytest.warns(UserWarning):  # Agg shows no window, and says so
+            posing = mvcjax.interact(subject, solver=solver, spare_pins=0)
+        targets = np.asarray(subject.handle_positions) + 3.0
+        posing.set_targets(targets)
+        cold = subject.joined(subject.deform(targets, solver))
+        np.testing.assert_allclose(posing.shape_vertices, cold, atol=0.05)
+        assert posing.folds == 0
+    finally:
+        plt.close("all")

@@ -38,11 +38,13 @@ from ..core import (
 from ..geometry import Shape, Skinning, image_mask, to_uint8
 from ..rendering import Renderer, key_layout
 from ..rig import (
+    AbstractRig,
     Bone,
     ControlMesh,
     Handles,
     Rig,
     ShapeMesh,
+    checked_start,
     make_handles,
     parse_handles,
     pin,
@@ -212,7 +214,7 @@ def _feed_handles(rows: list, rest: np.ndarray, dtype) -> Handles:
     return make_handles(rest, [], columns, dtype)
 
 
-class Character(JittableModule):
+class Character(AbstractRig):
     """A character drawn in layers: one rig per part, all posed by one set of handles.
 
     Build one with `Character.build`. `character.deform(targets)` gives every part's
@@ -361,13 +363,38 @@ class Character(JittableModule):
     def _check_targets(self, targets) -> Float[Array, "t 2"]:
         return check_targets(targets, self.handles.count, self.handles.rest.dtype)
 
-    def solve(self, targets: Any, solver: Any = DEFAULT_SOLVER, *,
+    def _check_init(self, init: Any) -> tuple:
+        """`init` for every part: a start's name, or the part's rows of `(c, 2)` control
+        vertices of the joined control mesh."""
+        init = checked_start(init, self.control_mesh.vertices.shape)
+        if isinstance(init, str):
+            return (init,) * len(self.parts)
+        ends = np.cumsum([part.control_mesh.vertices.shape[0] for part in self.parts])
+        return tuple(init[end - part.control_mesh.vertices.shape[0]:end]
+                     for part, end in zip(self.parts, ends))
+
+    def start(self, targets: Any, init: Any = "turned") -> Float[Array, "c 2"]:
+        """Starting vertices of the joined control mesh (`control_mesh`) for `(t, 2)`
+        targets: every part's start (`Rig.start`, a start's name), parents first, an
+        attached part's attachment targets carried by its parent's start."""
+        targets = self._check_targets(targets)
+        starts = [None] * len(self.parts)
+        for i in self.order:
+            parent = self.parents[i]
+            own = self.part_targets(i, targets, None if parent < 0 else starts[parent])
+            starts[i] = self.parts[i].start(own, init)
+        return self.joined(starts)
+
+    def solve(self, targets: Any, solver: Any = DEFAULT_SOLVER, *, init: Any = "turned",
               return_info: bool = False):
         """Every part's control vertices for these targets, parents first.
 
         Args:
             targets: `(t, 2)` where each handle goes (a row per point, two per bone).
             solver: the solver of every part (default: `Rig.solve`'s).
+            init: every part's start, a start's name (see `Rig.start`), or `(c, 2)`
+                vertices of the joined control mesh (`control_mesh`): a pose before,
+                `character.joined(control)`.
             return_info: also return a `SolveInfo` per part.
 
         Returns:
@@ -375,21 +402,35 @@ class Character(JittableModule):
             a tuple of `SolveInfo`s if asked for).
         """
         check_solver(solver)
-        control, info = _solve_parts(self, self._check_targets(targets), solver, "turned")
+        control, info = _solve_parts(self, self._check_targets(targets), solver,
+                                     self._check_init(init))
         return (control, info) if return_info else control
 
     def skin(self, control: tuple) -> tuple:
         """Every part's shape-mesh vertices carried by its control vertices."""
         return tuple(part.skin(c) for part, c in zip(self.parts, control))
 
-    def deform(self, targets: Any, solver: Any = DEFAULT_SOLVER, *,
+    def deform(self, targets: Any, solver: Any = DEFAULT_SOLVER, *, init: Any = "turned",
                return_info: bool = False):
         """Solve, then skin: a tuple of every part's deformed shape-mesh vertices
         `(n_i, 2)` in the layers' order (and a `SolveInfo` per part); the arguments are
         those of `solve`."""
         check_solver(solver)
-        vertices, info = _deform_parts(self, self._check_targets(targets), solver, "turned")
+        vertices, info = _deform_parts(self, self._check_targets(targets), solver,
+                                       self._check_init(init))
         return (vertices, info) if return_info else vertices
+
+    def joined(self, posed: tuple | list) -> Float[Array, "*frames n 2"]:
+        """Every part's vertices (`solve`, `skin` or `deform`, of a pose or of many
+        frames) as one array, in the order of the joined meshes (`shape_mesh`,
+        `control_mesh`)."""
+        return jnp.concatenate(posed, axis=-2)
+
+    def with_spare_pins(self, count: Any) -> Character:
+        """The character itself: its pins are the handles it was built with (a new pin
+        needs a new character, `Character.build`)."""
+        whole_number(count, "count", minimum=0, what=" of spare pins")
+        return self
 
     def renderer(self, layers: Any, **options: Any) -> CharacterRenderer:
         """A renderer of this character from the layers it was built from: what
@@ -424,7 +465,7 @@ def _solve_parts(character: Character, targets, solver: AbstractSolver, init):
         part = character.parts[i]
         parent = character.parents[i]
         own = character.part_targets(i, targets, None if parent < 0 else control[parent])
-        local, info[i] = solve_in_frame(part, own, solver, init)
+        local, info[i] = solve_in_frame(part, own, solver, init[i])
         control[i] = part.frame.to_world(local)
     return tuple(control), tuple(info)
 

@@ -54,7 +54,7 @@ from ..core import (
     with_batching_rule,
 )
 from ..geometry import boundary_edges, edges, load_image, on_boundary, to_uint8
-from ..rig import Rig, ShapeMesh, pad_rows, stacked, too_large
+from ..rig import AbstractRig, ShapeMesh, pad_rows, stacked, too_large
 
 # A candidate pixel is inside a triangle when its centre is no further than this outside
 # an edge (in pixels): shared edges then never leave a crack between their triangles.
@@ -458,6 +458,12 @@ class Renderer(JittableModule):
         """
         return stack_renderers(renderers, like)
 
+    @property
+    def mesh(self) -> Renderer:
+        """The renderer of the whole mesh as one: this one (a character's renderer draws
+        its parts' meshes joined with `mesh`)."""
+        return self
+
     def __call__(
         self, vertices: Float[ArrayLike, "n 2"], window: Any = None
     ) -> Float[Array, "rows cols 4"]:
@@ -622,7 +628,7 @@ def _draw_batch(renderer: Renderer, frames):
 
 
 def _mesh_of(mesh) -> tuple[np.ndarray, np.ndarray]:
-    if isinstance(mesh, Rig):
+    if isinstance(mesh, AbstractRig):  # a rig, or a character's parts joined
         mesh = mesh.shape_mesh
     if isinstance(mesh, ShapeMesh):
         return np.asarray(mesh.vertices), np.asarray(mesh.faces)

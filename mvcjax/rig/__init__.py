@@ -20,11 +20,11 @@ from ._pins import (
     with_pin_state as with_pin_state,
     with_rows as with_rows,
 )
+from ._posable import AbstractRig as AbstractRig, ControlMesh as ControlMesh, ShapeMesh as ShapeMesh
 from ._rig import (
-    ControlMesh as ControlMesh,
     Rig as Rig,
-    ShapeMesh as ShapeMesh,
     shape_thickness as shape_thickness,
     solve_in_frame as solve_in_frame,
 )
 from ._stack import pad_rows as pad_rows, stacked as stacked, too_large as too_large
+from ._start import checked_start as checked_start

@@ -8,19 +8,15 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, Int
+from jaxtyping import Array, ArrayLike, Float
 
 from ..core import (
-    JittableModule,
     Programs,
-    as_array,
     as_points,
     check_targets,
     compiled_by,
-    finite_when_traced,
     is_real_number,
     is_traced,
-    kind_of,
     programs_field,
     refusing_removed,
     to_device,
@@ -62,8 +58,9 @@ from . import _pins
 from ._control import PaperControl, as_control
 from ._handles import Handles, check_handles, make_handles, pin
 from ._ladder import SizeLadder, cut_factor, keep_twin, padded_twin, twin_parts
+from ._posable import AbstractRig, ControlMesh, ShapeMesh
 from ._stack import pad_rows, stack_rigs
-from ._start import STARTS, start_vertices, turn_weights
+from ._start import checked_start, start_vertices, turn_weights
 
 
 class _BuildOptions(NamedTuple):
@@ -147,39 +144,6 @@ def _meshed_parts(shape: Shape, shape_spacing, options: _BuildOptions) -> tuple:
     return ((shape_vertices, shape_faces, shape_pinned[row_pin]),
             (parts.vertices, parts.faces, parts.loops, parts.inner, parts.pinned[row_pin]),
             skin, handle_rows)
-
-
-class ShapeMesh(eqx.Module):
-    """The dense triangle mesh the user sees.
-
-    Attributes:
-        vertices: `(n, 2)` rest vertices.
-        faces: `(f, 3)` counter-clockwise triangles.
-        handles: `(r,)` the vertex each handle pins, one per row of `Handles` (a
-            point handle pins one, a bone several along its segment).
-    """
-
-    vertices: Float[Array, "n 2"]
-    faces: Int[Array, "f 3"]
-    handles: Int[Array, " r"]
-
-
-class ControlMesh(eqx.Module):
-    """The small mesh the energy is solved on.
-
-    Attributes:
-        vertices: `(c, 2)` rest vertices, the polygon loops first, then the inner ones.
-        faces: `(f, 3)` counter-clockwise triangles.
-        outer: `(p,)` the vertices of the enclosing polygon `V_CP`, loop after loop.
-        inner: `(g,)` the inner vertices `V_CG`.
-        handles: `(r,)` the vertex each handle pins, as `ShapeMesh.handles`.
-    """
-
-    vertices: Float[Array, "c 2"]
-    faces: Int[Array, "f 3"]
-    outer: Int[Array, " p"]
-    inner: Int[Array, " g"]
-    handles: Int[Array, " r"]
 
 
 def _array(a, dtype) -> Array:
@@ -305,7 +269,7 @@ def _check_rig(shape_vertices, control_vertices, control_faces, skin_index, skin
         )
 
 
-class Rig(JittableModule):
+class Rig(AbstractRig):
     """A shape ready to deform: both meshes, the skinning weights and the solver's data.
 
     Build one with `Rig.build`. A rig is a pytree of arrays: pass it through `jax.jit`,
@@ -593,36 +557,14 @@ class Rig(JittableModule):
         return np.asarray(self.handles.active)
 
     def _check_init(self, init: Any) -> Any:
-        """`init`: a start's name, or `(c, 2)` finite control vertices (checked on the
-        host where concrete, when run where traced)."""
-        if isinstance(init, str):
-            if init not in STARTS:
-                raise ValueError(f"init must be one of {STARTS} or a (c, 2) array, got "
-                                 f"{init!r}.")
-            return init
-        message = ("init holds NaN or infinite coordinates; give finite (x, y) control "
-                   "vertices (a previous frame's), or a start's name such as 'turned'.")
-        if isinstance(init, jax.core.Tracer):
-            return finite_when_traced(init, message)
-        host = as_array(init, "init", f"an array of shape {self.energy.rest.shape}")
-        if host.dtype.kind not in "iuf":
-            raise TypeError(f"init must hold real (x, y) numbers, got {kind_of(host)}.")
-        if not np.all(np.isfinite(host)):
-            raise ValueError(message)
-        return init
+        return checked_start(init, self.energy.rest.shape)
 
     def _local_start(self, targets: Float[Array, "t 2"], init: Any) -> Float[Array, "c 2"]:
         """The start for targets in the rig's frame (a row per target)."""
         if isinstance(init, str):
             return start_vertices(self.energy, self.factor, self.handles, self.turns, targets,
                                   init)
-        init = jnp.asarray(init, self.energy.rest.dtype)
-        if init.shape != self.energy.rest.shape:
-            raise ValueError(
-                f"init must have the control mesh's shape {self.energy.rest.shape}, got "
-                f"{init.shape}."
-            )
-        return self.frame.to_local(init)
+        return self.frame.to_local(jnp.asarray(init, self.energy.rest.dtype))
 
     def start(self, targets: Any, init: Any = "turned") -> Float[Array, "c 2"]:
         """Starting control vertices for `(h, 2)` targets.
@@ -704,6 +646,10 @@ class Rig(JittableModule):
         units (what `SolveInfo.energy` reports)."""
         return total_energy(self.energy, self.frame.to_local(control_vertices),
                             self._pinned(self._check_targets(targets))) * self.frame.scale**2
+
+    def joined(self, posed: Float[ArrayLike, "*frames n 2"]) -> Float[Array, "*frames n 2"]:
+        """What `solve`, `skin` or `deform` gave, as it is: a rig is one mesh."""
+        return jnp.asarray(posed)
 
     def skin(self, control_vertices: Float[ArrayLike, "c 2"]) -> Float[Array, "n 2"]:
         """Shape-mesh vertices `(n, 2)` carried by `(c, 2)` control vertices (`V_S = W V_C`)."""

@@ -14,17 +14,46 @@ global step gives the vertices that meet these targets and the handles best.
 
 from __future__ import annotations
 
+from typing import Any
+
+import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse
 import scipy.sparse.linalg
 from jaxtyping import Array, Float, Int
 
+from ..core import as_array, finite_when_traced, kind_of
 from ..energy import AbstractFactor, Energy, rigid_alignment, rigid_start
 from ..geometry import edges as mesh_edges
 from ._handles import Handles
 
 STARTS = ("turned", "rigid", "rest")
+
+
+def checked_start(init: Any, shape: tuple[int, int]) -> Any:
+    """`init`: a start's name, or `shape` = `(c, 2)` finite control vertices (checked on
+    the host where concrete, when run where traced)."""
+    if isinstance(init, str):
+        if init not in STARTS:
+            raise ValueError(f"init must be one of {STARTS} or a (c, 2) array, got "
+                             f"{init!r}.")
+        return init
+    message = ("init holds NaN or infinite coordinates; give finite (x, y) control "
+               "vertices (a previous frame's), or a start's name such as 'turned'.")
+    if isinstance(init, jax.core.Tracer):
+        checked = finite_when_traced(init, message)
+    else:
+        checked = as_array(init, "init", f"an array of shape {shape}")
+        if checked.dtype.kind not in "iuf":
+            raise TypeError(f"init must hold real (x, y) numbers, got {kind_of(checked)}.")
+        if not np.all(np.isfinite(checked)):
+            raise ValueError(message)
+        checked = init
+    if tuple(checked.shape) != tuple(shape):
+        raise ValueError(f"init must have the control mesh's shape {tuple(shape)}, got "
+                         f"{tuple(checked.shape)}.")
+    return checked
 
 
 def turn_weights(
