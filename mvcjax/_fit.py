@@ -220,7 +220,8 @@ def _weights(channels: str, dtype):
 
 
 def _residuals(rig, renderer, solver, weights, targets, target_picture, blur):
-    drawn = _premultiplied(renderer(rig.joined(rig.deform(targets, solver))))
+    # In the picture's window, given (`_check_in_view` warned of handles outside it).
+    drawn = _premultiplied(renderer(rig.joined(rig.deform(targets, solver)), renderer.window))
     # Per pixel and channel, unscaled: the solver's damping and tolerances then meet
     # numbers of order one, whatever the picture's size. Blurring is linear, so
     # blurring the difference is the difference of the blurred pictures.

@@ -66,7 +66,7 @@ def _pose(rig: AbstractRig, renderer: Renderer | None, solver: AbstractSolver,
     folds = jnp.sum(flipped, dtype=jnp.int32)
     if renderer is None:
         return control, shape, None, flipped, folds
-    picture = renderer(shape)
+    picture = renderer(shape, renderer.window)  # the view: what leaves it is seen to
     picture = jnp.round(jnp.clip(picture, 0, 1) * 255).astype(jnp.uint8)
     return control, shape, picture, flipped, folds
 

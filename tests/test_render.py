@@ -523,7 +523,8 @@ def test_a_partly_transparent_picture_lies_over_the_background(alpha, expected):
 
 def test_a_grown_window_holds_a_pose_that_leaves_the_frame(renderer, rig):
     away = rig.shape_mesh.vertices + jnp.array([60.0, 0.0])
-    cut = np.asarray(renderer(away))
+    with pytest.warns(UserWarning, match="1 pose drawn reaches outside"):
+        cut = np.asarray(renderer(away))
     grown = np.asarray(renderer(away, window="grow"))
     # Cut off at the frame's right edge, the pose is whole in a grown window: nothing is
     # drawn along its border, and the drawn area is the rest picture's, scaled down.
@@ -574,6 +575,32 @@ def test_frames_say_once_that_an_animation_leaves_the_window(renderer, rig, pict
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         whole.frames(leaving)
+
+
+_DRAWS = {
+    "plain": lambda r, poses: [r(v) for v in poses],
+    "jit": lambda r, poses: [jax.jit(lambda r, v: r(v))(r, v) for v in poses],
+    "vmap": lambda r, poses: jax.vmap(r)(poses),
+    "jit_vmap": lambda r, poses: jax.jit(jax.vmap(lambda v: r(v)))(poses),
+    "stack": lambda r, poses: jax.vmap(lambda s, v: s(v))(
+        mvcjax.Renderer.stack([r] * len(poses)), poses),
+}
+
+
+@pytest.mark.parametrize("draw", list(_DRAWS), ids=list(_DRAWS))
+def test_every_way_of_drawing_says_when_a_pose_is_cut_off(renderer, rig, draw):
+    import warnings
+
+    rest = rig.shape_mesh.vertices
+    width = float(renderer.window[2] - renderer.window[0])
+    poses = jnp.stack([rest, rest + jnp.array([0.5 * width, 0.0])])
+    with pytest.warns(UserWarning, match="reaches outside the renderer's window") as said:
+        jax.block_until_ready(_DRAWS[draw](renderer, poses))
+    assert len(said) == 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # inside, or in a window given: nothing said
+        jax.block_until_ready(_DRAWS[draw](renderer, poses[:1]))
+        jax.block_until_ready(renderer(poses[1], renderer.window))
 
 
 def _sprite_arm_across_the_chest():

@@ -662,5 +662,6 @@ class CharacterRenderer(JittableModule):
 
 @compiled_by()
 def _draw_character_batch(renderer: CharacterRenderer, vertices, order):
-    return jax.vmap(lambda v, o: renderer(v, o))(vertices, order)
+    # In its window, given: `frames` warned of what it cuts off, once for all frames.
+    return jax.vmap(lambda v, o: renderer(v, o, renderer.window))(vertices, order)
 

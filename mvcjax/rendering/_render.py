@@ -478,6 +478,10 @@ class Renderer(JittableModule):
 
         Returns:
             `(rows, cols, 4)` straight (not premultiplied) RGBA in [0, 1].
+
+        A pose drawn in the renderer's own window (`window=None`) that reaches outside
+        it is cut off, and a warning says so: at once for a plain call, when the program
+        runs under `jax.jit` and `jax.vmap` (each pose of a batch counted).
         """
         n = self.texture_points.shape[0]
         if not hasattr(vertices, "shape") or tuple(vertices.shape) != (n, 2):
@@ -491,7 +495,10 @@ class Renderer(JittableModule):
                 raise ValueError(f"window must be (xmin, ymin, xmax, ymax), None or 'grow', "
                                  f"got {window!r}.")
             window = _grown(self.window, vertices, self.shape)
-        window = self.window if window is None else jnp.asarray(window, self.texture.dtype)
+        if window is None:
+            window = self.window
+            _warn_when_cut_off(vertices, window)
+        window = jnp.asarray(window, self.texture.dtype)
         # Under jax.vmap over frames: one frame after another (`_draw_frames`).
         return with_batching_rule(_draw, _draw_frames)(self, vertices, window)
 
@@ -624,7 +631,36 @@ def _draw_frames(frames: int, in_batched, renderer: Renderer, vertices, window):
 
 @compiled_by()
 def _draw_batch(renderer: Renderer, frames):
-    return jax.vmap(lambda v: renderer(v))(frames)
+    # In its window, given: `frames` warned of what it cuts off, once for all frames.
+    return jax.vmap(lambda v: renderer(v, renderer.window))(frames)
+
+
+def _cut_off(outside, window) -> None:
+    """Warn that `outside` poses (a count, or flags) leave `window`."""
+    count = int(np.sum(outside))
+    if count:
+        xmin, ymin, xmax, ymax = np.asarray(window, np.float64).reshape(-1, 4)[0]
+        one = count == 1
+        warnings.warn(
+            f"{count} pose{'' if one else 's'} drawn reach{'es' if one else ''} outside the "
+            f"renderer's window ({xmin:g}, {ymin:g}, {xmax:g}, {ymax:g}) and "
+            f"{'is' if one else 'are'} cut off there. To keep {'it' if one else 'them'} "
+            "whole, draw with renderer(vertices, window='grow'), or build the renderer with "
+            "window=mvcjax.fit_window(frames, size); a window passed explicitly draws "
+            "exactly it, without this warning.", stacklevel=2)
+
+
+def _warn_when_cut_off(vertices, window) -> None:
+    """`_cut_off` for a pose drawn in the renderer's own window: now for concrete
+    vertices, when the program runs for traced ones (under `jax.jit`, `jax.vmap`)."""
+    if isinstance(vertices, jax.core.Tracer) or isinstance(window, jax.core.Tracer):
+        lower, upper = window[:2], window[2:]
+        outside = jnp.any((vertices < lower) | (vertices > upper))
+        jax.debug.callback(_cut_off, outside, window)
+        return
+    points, (xmin, ymin, xmax, ymax) = np.asarray(vertices), np.asarray(window)
+    with np.errstate(invalid="ignore"):
+        _cut_off(np.any((points < (xmin, ymin)) | (points > (xmax, ymax))), window)
 
 
 def _mesh_of(mesh) -> tuple[np.ndarray, np.ndarray]:
