@@ -238,8 +238,16 @@ def _gap_cuts(shape: Shape, margin: float, step: float | None = None):
     finer = max(narrowest / 4.0, 1e-3 * margin, perimeter / MAX_SAMPLES)
     if step > narrowest / 2.0 and finer < step:
         return _gap_cuts(shape, margin, finer)
-    lines = np.stack([mid + t0[:, None] * u, mid + t1[:, None] * u], axis=1)[ok]
-    cut = shapely.multilinestrings(lines).difference(shape.polygon)
+    lines = shapely.linestrings(np.stack([mid + t0[:, None] * u, mid + t1[:, None] * u],
+                                         axis=1)[ok])
+    # Only the lines that reach into the shape are cut by it (an overlay with the whole
+    # outline costs its size): the others are kept whole.
+    polygon = shape.polygon  # a new polygon, prepared here
+    shapely.prepare(polygon)
+    crossing = shapely.intersects(polygon, lines)
+    inside = shapely.multilinestrings(lines[crossing]).difference(polygon)
+    pieces = [lines[~crossing], shapely.get_parts(inside)]
+    cut = shapely.multilinestrings(np.concatenate(pieces))
     return (None, np.inf) if cut.is_empty else (cut, narrowest)
 
 
