@@ -71,8 +71,8 @@ _SHARED: weakref.WeakValueDictionary = weakref.WeakValueDictionary()
 
 # The last programs run, kept a while after their holders go, so that a rig rebuilt at a
 # size just used (a script or a notebook cell run again) does not compile again: a
-# bounded cache, like each of JAX's own, of about a dozen rig sizes' programs.
-RECENT = 64
+# bounded cache, like each of JAX's own, of about half a dozen rig sizes' programs.
+RECENT = 24
 _RECENT: collections.OrderedDict = collections.OrderedDict()
 
 
