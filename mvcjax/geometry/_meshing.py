@@ -238,17 +238,19 @@ def _gap_cuts(shape: Shape, margin: float, step: float | None = None):
     finer = max(narrowest / 4.0, 1e-3 * margin, perimeter / MAX_SAMPLES)
     if step > narrowest / 2.0 and finer < step:
         return _gap_cuts(shape, margin, finer)
-    lines = shapely.linestrings(np.stack([mid + t0[:, None] * u, mid + t1[:, None] * u],
-                                         axis=1)[ok])
-    # Only the lines that reach into the shape are cut by it (an overlay with the whole
-    # outline costs its size): the others are kept whole.
-    polygon = shape.polygon  # a new polygon, prepared here
+    lines = np.stack([mid + t0[:, None] * u, mid + t1[:, None] * u], axis=1)[ok]
+    cut = _outside(shapely.linestrings(lines), shape.polygon)
+    return (None, np.inf) if cut.is_empty else (cut, narrowest)
+
+
+def _outside(lines, polygon):
+    """The parts of `lines` outside `polygon`, as one multi-line. Only the lines that
+    reach into it are cut (an overlay with the whole outline costs its size)."""
     shapely.prepare(polygon)
     crossing = shapely.intersects(polygon, lines)
-    inside = shapely.multilinestrings(lines[crossing]).difference(polygon)
-    pieces = [lines[~crossing], shapely.get_parts(inside)]
-    cut = shapely.multilinestrings(np.concatenate(pieces))
-    return (None, np.inf) if cut.is_empty else (cut, narrowest)
+    cut = shapely.multilinestrings(lines[crossing]).difference(polygon)
+    return shapely.multilinestrings(np.concatenate([lines[~crossing],
+                                                    shapely.get_parts(cut)]))
 
 
 def _simplify_ring(ring, spacing, inside, outside, count_min=3):
