@@ -1,6 +1,6 @@
 """Command line: `mvcjax demo [--out FILE.png] [--animation FILE.gif] [--layers FILE.gif]`,
-and
-`mvcjax dataset SPRITES OUT [--poses N] [--size PIXELS] ...`."""
+`mvcjax dataset SPRITES OUT [--poses N] [--size PIXELS] ...` and
+`mvcjax animate SCENE.yaml OUT.gif` (AnimatedDrawings' files)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import numpy as np
 
 import mvcjax
 
-from . import datasets, export, generate, plot
+from . import datasets, export, generate, motion, plot
 from .generate import PoseLimits
 from .solvers import DEFAULT_SOLVER
 
@@ -226,9 +226,60 @@ def _dataset(args) -> int:
     return 0
 
 
-def main(argv=None) -> int:
+def _animate(args) -> int:
+    files = args.files
+    if len(files) not in (2, 4):
+        raise SystemExit("mvcjax animate: give SCENE.yaml OUT, or CHARACTER MOTION.yaml "
+                         "RETARGET.yaml OUT (AnimatedDrawings' files).")
+    _say(f"mvcjax animate: {' '.join(files[:-1])} -> {files[-1]}")
+    t0 = time.perf_counter()
+    try:
+        scene = motion.Scene.read(files[0]) if len(files) == 2 else motion.Scene.from_files(
+            *files[:3])
+    except (motion.BVHError, motion.ConfigError, FileNotFoundError) as error:
+        print(f"mvcjax animate: {error}", file=sys.stderr)
+        return 2
+    _say(f"  read and rigged {len(scene.actors)} character(s), {scene.frames} frames, in "
+         f"{time.perf_counter() - t0:.1f} s")
+    solver = mvcjax.FoldFree() if args.fold_free else None
+    t0 = time.perf_counter()
+    poses = scene.deform(solver)
+    _say(f"  deformed in {time.perf_counter() - t0:.1f} s (compiling included)")
+    for actor, vertices in zip(scene.actors, poses):
+        report = actor.report(vertices)
+        _say(f"  {actor.drawing.config.path.parent.name}: joints within "
+             f"{report.joint_miss.max():.2f} px, folds in {report.folded_frames:.0%} of "
+             f"frames (at most {report.flipped.max()} shape triangles)")
+    t0 = time.perf_counter()
+    progress = None if args.progress is None else args.progress == "on"
+    scene.write(files[-1], vertices=poses, size=args.size, progress=progress)
+    _say(f"  drew and wrote {files[-1]} in {time.perf_counter() - t0:.1f} s")
+    return 0
+
+
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mvcjax", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
+    _demo_parser(sub)
+    _dataset_parser(sub)
+    animate = sub.add_parser(
+        "animate", help="move a drawn character by motion capture (AnimatedDrawings' files)",
+        description="Read AnimatedDrawings' files (a scene config, or a character folder, "
+        "a motion config and a retarget config), retarget the clip onto the character, pose "
+        "it every frame and write the animation: .gif, .mp4, .png (animated), .webp, or a "
+        "folder of PNG frames for a path without a suffix.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    animate.add_argument("files", nargs="+", metavar="FILE",
+                         help="SCENE.yaml OUT, or CHARACTER MOTION.yaml RETARGET.yaml OUT")
+    animate.add_argument("--fold-free", action="store_true",
+                         help="solve with mvcjax.FoldFree (no fold, slower)")
+    animate.add_argument("--size", type=int, default=None,
+                         help="the pictures' longer side (default: the character's pixels)")
+    animate.add_argument("--progress", choices=("on", "off"), default=None)
+    return parser
+
+
+def _demo_parser(sub) -> None:
     demo = sub.add_parser("demo", help="deform the built-in horse and write a figure",
                           formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     demo.add_argument("--out", default="mvcjax-demo.png", help="PNG figure to write")
@@ -244,6 +295,9 @@ def main(argv=None) -> int:
     demo.add_argument("--dpi", type=int, default=110)
     demo.add_argument("--arm-degrees", type=float, default=110.0,
                       help="how far the character's arm turns in the fold panels")
+
+
+def _dataset_parser(sub) -> None:
     dataset = sub.add_parser(
         "dataset", help="pose every sprite of a folder at random and write the pictures",
         description="Rig every sprite of a folder (pictures with alpha, or opaque pictures "
@@ -273,12 +327,12 @@ def main(argv=None) -> int:
                          "run as one of several processes (jax.distributed)")
     dataset.add_argument("--num-processes", type=int, default=None)
     dataset.add_argument("--process-id", type=int, default=None)
-    args = parser.parse_args(argv)
-    if args.command == "demo":
-        return _demo(args)
-    if args.command == "dataset":
-        return _dataset(args)
-    return 2
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    commands = {"demo": _demo, "dataset": _dataset, "animate": _animate}
+    return commands[args.command](args)
 
 
 def _pose_limits():

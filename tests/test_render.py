@@ -393,6 +393,25 @@ def test_draw_order_by_depth_and_by_default_the_dragged_part_on_top():
         np.testing.assert_allclose(overlap, expected, atol=1e-12)
 
 
+def test_frames_take_a_draw_order_per_frame():
+    red, blue = np.array([1.0, 0, 0, 1]), np.array([0, 0, 1.0, 1])
+    r, vertices = two_squares(None)
+    texture = jnp.asarray(np.stack([red, blue])[None], r.texture.dtype)
+    points = jnp.asarray([[0.0, 0.0]] * 4 + [[1.0, 0.0]] * 4, r.texture.dtype)
+    r = eqx.tree_at(lambda q: (q.texture, q.texture_points), r, (texture, points))
+    moved = vertices.copy()
+    moved[4:] -= [15, 0]
+    right = np.asarray(r.faces).min(axis=1) >= 4  # the right square's triangles
+    levels = np.stack([np.where(right, 2, 0), np.where(right, 0, 2), np.where(right, 2, 0)])
+    out = r.frames(np.repeat(moved[None], 3, 0), levels=levels, progress=False, chunk=2)
+    on_top = [blue, red, blue]
+    for picture, colour in zip(out, on_top):
+        np.testing.assert_array_equal(picture[10, 12], (colour * 255).astype(np.uint8))
+    for bad in (levels[:2], levels.astype(float), levels + r.max_level):
+        with pytest.raises(ValueError, match="levels must be"):
+            r.frames(np.repeat(moved[None], 3, 0), levels=bad, progress=False)
+
+
 def test_filled_shapes_without_a_picture(rig):
     board = mvcjax.Renderer.build(rig, size=(96, 128))
     out = np.asarray(board(rig.shape_mesh.vertices))

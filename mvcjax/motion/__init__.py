@@ -8,4 +8,6 @@ from ._configs import (
     RetargetConfig as RetargetConfig,
     read_scene as read_scene,
 )
+from ._drawing import Drawing as Drawing
 from ._retarget import Retargeted as Retargeted, retarget as retarget
+from ._scene import Actor as Actor, PoseReport as PoseReport, Scene as Scene

@@ -144,7 +144,7 @@ def _world_positions(joints: list, frames: np.ndarray) -> np.ndarray:
     count = len(frames)
     turns, places = [], []
     column = 0
-    for name, parent, offset, channels in joints:
+    for _, parent, offset, channels in joints:
         values = frames[:, column:column + len(channels)]
         column += len(channels)
         place = np.tile(np.asarray(offset, float), (count, 1))

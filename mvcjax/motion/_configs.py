@@ -182,7 +182,8 @@ class RetargetConfig:
             projections = tuple((str(g["name"]), str(g["method"]),
                                  tuple(map(str, g["bvh_joint_names"])))
                                 for g in _entry(data, "bvh_projection_bodypart_groups", path, list))
-            parts = tuple((tuple(map(str, g["char_joints"])), tuple(map(str, g["bvh_depth_drivers"])))
+            parts = tuple((tuple(map(str, g["char_joints"])),
+                           tuple(map(str, g["bvh_depth_drivers"])))
                           for g in _entry(data, "char_bodypart_groups", path, list))
             offset = _entry(data, "char_bvh_root_offset", path, dict)
             mapping = tuple((str(char), str(a), str(b)) for char, (a, b) in

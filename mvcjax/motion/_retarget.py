@@ -7,10 +7,11 @@ of their drivers."""
 from __future__ import annotations
 
 import dataclasses
+import itertools
 
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 from scipy.spatial.transform import Rotation
 
 from ..geometry import pixels_to_points
@@ -43,8 +44,8 @@ class Retargeted:
     frame_time: float
     parts: tuple[tuple[str, ...], ...]
 
-    def joints(self, angles: Float[Array, "*frames k"] | None = None,
-               root: Float[Array, "*frames 2"] | None = None) -> Float[Array, "*frames j 2"]:
+    def joints(self, angles: Float[ArrayLike, "*frames k"] | None = None,
+               root: Float[ArrayLike, "*frames 2"] | None = None) -> Float[Array, "*frames j 2"]:
         """The character's joints posed by bone angles and a root offset (default: the
         clip's), differentiable in both: AnimatedDrawings' forward kinematics."""
         angles = jnp.asarray(self.angles if angles is None else angles)
@@ -130,7 +131,7 @@ def _bone_angles(motion, relative, joint_normal, config: RetargetConfig, mapped)
 
 def _chain_length(points: np.ndarray, chains) -> float:
     return float(sum(np.linalg.norm(points[b] - points[a])
-                     for chain in chains for a, b in zip(chain[:-1], chain[1:])))
+                     for chain in chains for a, b in itertools.pairwise(chain)))
 
 
 def _root_path(motion, root, forward, normal, scale) -> np.ndarray:
@@ -142,7 +143,7 @@ def _root_path(motion, root, forward, normal, scale) -> np.ndarray:
     return np.concatenate([np.zeros((1, 2)), np.cumsum(moves, 0)])
 
 
-def _rest_points(character: CharacterConfig) -> np.ndarray:
+def rest_points(character: CharacterConfig) -> np.ndarray:
     return pixels_to_points(character.pixels[:, ::-1], character.size[0])
 
 
@@ -180,7 +181,7 @@ def retarget(character: CharacterConfig, motion: Motion, motion_config: MotionCo
     relative, root, forward = _standing(motion, motion_config)
     normals = _normals(motion, relative, config)
     joint_normal = {j: normals[name] for name, _, joints in config.projections for j in joints}
-    rest = _rest_points(character)
+    rest = rest_points(character)
     mapped = _kept_mappings(character, rest, config)
     if config.offset_group not in normals:
         raise ConfigError(f"{config.path}: bvh_projection_bodypart_group_for_offset names "

@@ -502,13 +502,17 @@ class Renderer(JittableModule):
         # Under jax.vmap over frames: one frame after another (`_draw_frames`).
         return with_batching_rule(_draw, _draw_frames)(self, vertices, window)
 
-    def frames(self, vertices: Any, *, chunk: Any = None, progress: Any = None,
-               devices: Any = None) -> np.ndarray:
+    def frames(self, vertices: Any, *, levels: Any = None, chunk: Any = None,
+               progress: Any = None, devices: Any = None) -> np.ndarray:
         """Many pictures, ready to write: `(frames, rows, cols, 4)` straight RGBA as
         `uint8` numpy, drawn `chunk` frames at a time by one compiled program.
 
         Args:
             vertices: `(frames, n, 2)` vertex positions, e.g. from `deform_frames`.
+            levels: `(frames, f)` integers, each triangle's draw level at each frame
+                (in `faces`' order, higher on top, at most `max_level`): a draw order that
+                changes from frame to frame, such as a limb passing in front of the body
+                and behind it. Default: the renderer's `level` at every frame.
             chunk: frames per compiled batch. Default: as many as fit in about 256 MB
                 of working memory (at least 1, at most 64).
             progress: a progress bar (tqdm): True, False, or None for one on a terminal
@@ -534,19 +538,19 @@ class Renderer(JittableModule):
         # every device at once, each program where its arrays are.
         copies = [self] if devices is None else [jax.device_put(self, d) for d in devices]
         self._warn_if_clipped(frames)
+        levels = self._checked_levels(levels, len(frames))
         out = np.empty((len(frames), *self.shape, 4), np.uint8)
         dtype = self.texture.dtype
         with progress_bar(len(frames), progress, "rendering") as bar:
             for first in range(0, len(frames), chunk * len(copies)):
                 drawn = []
                 for renderer, begin in zip(copies, range(first, len(frames), chunk)):
-                    part = frames[begin:begin + chunk]
-                    if len(part) < chunk:  # one compiled size: pad the last batch
-                        part = np.concatenate([part, np.repeat(part[-1:], chunk - len(part),
-                                                               0)])
-                    part = jnp.asarray(part, dtype) if devices is None else jax.device_put(
-                        part.astype(dtype), renderer.texture.sharding)
-                    drawn.append((begin, _draw_batch(renderer, part)))
+                    part = _padded(frames[begin:begin + chunk], chunk).astype(dtype)
+                    level = None if levels is None else _padded(levels[begin:begin + chunk],
+                                                               chunk)
+                    part, level = jax.device_put((part, level), None if devices is None
+                                                 else renderer.texture.sharding)
+                    drawn.append((begin, _draw_batch(renderer, part, level)))
                 for begin, pictures in drawn:
                     done = min(chunk, len(frames) - begin)
                     # Cut on the host: an eager slice compiles a program for every size.
@@ -562,6 +566,23 @@ class Renderer(JittableModule):
         with np.errstate(invalid="ignore"):
             return ((frames[..., 0] < xmin) | (frames[..., 0] > xmax)
                     | (frames[..., 1] < ymin) | (frames[..., 1] > ymax)).any(axis=-1)
+
+    @property
+    def max_level(self) -> int:
+        """The highest draw level a triangle can have (`levels` of `frames`)."""
+        return key_layout(self.faces.shape[0])[1] - 1
+
+    def _checked_levels(self, levels, frames: int) -> np.ndarray | None:
+        if levels is None:
+            return None
+        array = np.asarray(levels)
+        shape = (frames, self.faces.shape[0])
+        if (array.shape != shape or not np.issubdtype(array.dtype, np.integer)
+                or array.min() < 0 or array.max() > self.max_level):
+            raise ValueError(f"levels must be {shape} integers from 0 to {self.max_level}, "
+                             f"a draw level per triangle per frame, got "
+                             f"{array.dtype} {array.shape}.")
+        return array.astype(np.int32)
 
     def _warn_if_clipped(self, frames: np.ndarray) -> None:
         """Say once, for a whole animation, that part of it leaves the window (and is
@@ -630,9 +651,18 @@ def _draw_frames(frames: int, in_batched, renderer: Renderer, vertices, window):
 
 
 @compiled_by()
-def _draw_batch(renderer: Renderer, frames):
+def _draw_batch(renderer: Renderer, frames, levels):
     # In its window, given: `frames` warned of what it cuts off, once for all frames.
-    return jax.vmap(lambda v: renderer(v, renderer.window))(frames)
+    if levels is None:
+        return jax.vmap(lambda v: renderer(v, renderer.window))(frames)
+    return jax.vmap(lambda v, level: eqx.tree_at(lambda r: r.level, renderer, level)(
+        v, renderer.window))(frames, levels)
+
+
+def _padded(part: np.ndarray, size: int) -> np.ndarray:
+    """`part`, its last row repeated up to `size` rows (one compiled size for every
+    batch)."""
+    return np.concatenate([part, np.repeat(part[-1:], size - len(part), 0)])
 
 
 def _cut_off(outside, window) -> None:
