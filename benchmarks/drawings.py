@@ -30,6 +30,7 @@ frame, the body parts' depths), the reference `tests/test_motion.py` compares wi
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import subprocess
@@ -87,20 +88,30 @@ def command(paths, out: str, fold_free: bool) -> dict:
             "output": done.stdout.strip().splitlines()}
 
 
-def peer_arap(peer: Path | None):
-    """AnimatedDrawings' `ARAP` class, or None without its source."""
-    if peer is None or not (peer / "animated_drawings" / "model" / "arap.py").is_file():
-        return None
-    import numpy as np
+PEER = """
+import json, sys, time
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+from animated_drawings.model.arap import ARAP
+data = np.load(sys.argv[2])
+t0 = time.perf_counter()
+arap = ARAP(data["joints"][0], list(data["faces"]), data["vertices"])
+setup = time.perf_counter() - t0
+times = []
+for frame in data["joints"]:
+    t0 = time.perf_counter()
+    arap.solve(frame)
+    times.append(time.perf_counter() - t0)
+print(json.dumps({"peer_ms": float(np.median(times) * 1e3), "peer_setup_s": setup,
+                  "peer_numpy": np.__version__}))
+"""
 
-    np.bool8 = np.bool_  # its annotations name numpy 1's alias
-    sys.path.insert(0, str(peer))
-    from animated_drawings.model.arap import ARAP
 
-    return ARAP
+def has_peer(peer: Path | None) -> bool:
+    return peer is not None and (peer / "animated_drawings" / "model" / "arap.py").is_file()
 
 
-def per_frame(scene, ARAP) -> dict:
+def per_frame(scene, peer: Path | None, python: str) -> dict:
     import jax
     import numpy as np
 
@@ -122,32 +133,30 @@ def per_frame(scene, ARAP) -> dict:
     row = {"rig_deform_ms": float(np.median(times) * 1e3),
            "deform_frames_ms": (time.perf_counter() - t0) * 1e3 / len(targets),
            "shape_vertices": int(rig.shape_mesh.vertices.shape[0]),
-           "peer": "missing" if ARAP is None else "AnimatedDrawings ARAP"}
-    if ARAP is not None:
-        row.update(peer_per_frame(actor, ARAP))
+           "peer": "AnimatedDrawings ARAP" if has_peer(peer) else "missing"}
+    if has_peer(peer):
+        row.update(peer_per_frame(actor, peer, python))
         row["speedup_rig_deform"] = row["peer_ms"] / row["rig_deform_ms"]
         row["speedup_deform_frames"] = row["peer_ms"] / row["deform_frames_ms"]
     return row
 
 
-def peer_per_frame(actor, ARAP) -> dict:
+def peer_per_frame(actor, peer: Path, python: str) -> dict:
     """AnimatedDrawings' ARAP on the rig's shape mesh, pinned at the joints (as it pins
-    its own mesh), in its units (the picture's larger side 1)."""
+    its own mesh), in its units (the picture's larger side 1), run by `python` (it needs
+    numpy 1)."""
     import numpy as np
 
     mesh = actor.drawing.rig.shape_mesh
     unit = max(actor.drawing.config.size)
-    joints = np.asarray(actor.motion.joints()) / unit
-    t0 = time.perf_counter()
-    arap = ARAP(joints[0].astype(np.float32), list(np.asarray(mesh.faces)),
-                (np.asarray(mesh.vertices) / unit).astype(np.float32))
-    setup = time.perf_counter() - t0
-    times = []
-    for frame in joints:
-        t0 = time.perf_counter()
-        arap.solve(frame.astype(np.float32))
-        times.append(time.perf_counter() - t0)
-    return {"peer_ms": float(np.median(times) * 1e3), "peer_setup_s": setup}
+    with tempfile.TemporaryDirectory() as tmp:
+        data = os.path.join(tmp, "peer.npz")
+        np.savez(data, joints=(np.asarray(actor.motion.joints()) / unit).astype(np.float32),
+                 faces=np.asarray(mesh.faces).astype(np.int32),
+                 vertices=(np.asarray(mesh.vertices) / unit).astype(np.float32))
+        done = subprocess.run([python, "-c", PEER, str(peer), data], capture_output=True,
+                              text=True, check=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
 
 
 def poses(scene, fold_free: bool) -> list[dict]:
@@ -208,19 +217,123 @@ def write_reference(peer: Path, examples: Path, out: str) -> None:
     print(f"wrote {out}")
 
 
+def format_table(data: dict, source: str) -> str:
+    """The docs' table (`docs/drawings.md`): the clip's timings, per frame against the
+    peer, and its folds, from a results file of this script."""
+    rows = {(r["kind"], r.get("solver")): r for r in data["rows"]}
+    gif = rows[("files_to_gif", None)]
+    frame = rows[("per_frame", None)]
+    meta = data["meta"]
+    lines = [f"From `{source}`: {gif['frames']} frames of `{meta['clip']}` on "
+             f"`{meta['character']}`, {gif['size'][1]}x{gif['size'][0]} pixels, "
+             f"{frame['shape_vertices']:,} shape vertices; {meta['cpu_count']} cores "
+             f"({meta['device']}), JAX {meta['jax']}" + (", quick run." if meta.get("quick")
+                                                       else "."), "",
+             "| what | time |", "|---|---|"]
+    for name, solver in (("default", "default"), ("`--fold-free`", "FoldFree")):
+        if ("command", solver) in rows:
+            lines.append(f"| `mvcjax animate` with the {name} solver, as run (start-up, "
+                         f"compiles) | {rows[('command', solver)]['seconds']:.1f} s |")
+    lines += [f"| files to GIF in a warm process, default solver | {gif['total_s']:.2f} s "
+              f"(read and rig {gif['read_and_rig_s']:.2f}, deform {gif['deform_s']:.2f}, "
+              f"draw {gif['draw_s']:.2f}, write {gif['write_s']:.2f}) |",
+              f"| a frame: `rig.deform`, jitted | {frame['rig_deform_ms']:.2f} ms |",
+              f"| a frame: the clip in one `deform_frames` | "
+              f"{frame['deform_frames_ms']:.3f} ms |"]
+    if "peer_ms" in frame:
+        lines += [f"| a frame: AnimatedDrawings' ARAP (peer), same mesh and joints | "
+                  f"{frame['peer_ms']:.1f} ms ({frame['speedup_rig_deform']:.0f}x "
+                  f"`rig.deform`, {frame['speedup_deform_frames']:.0f}x `deform_frames`) |"]
+    lines += ["", "| solver | frames with a fold | most flipped triangles in a frame | "
+              "joint miss (px) | deform time |", "|---|---|---|---|---|"]
+    for (kind, solver), r in rows.items():
+        if kind == "poses":
+            lines.append(f"| {solver} | {r['folded_frames']:.0%} | {r['most_flipped']} | "
+                         f"{r['joint_miss_px']:.2f} | {r['deform_s']:.1f} s |")
+    return "\n".join(lines)
+
+
+def format_examples_table(data: dict, source: str) -> str:
+    """The docs' table of every example character and clip: their folds."""
+    lines = [f"From `{source}` (default solver, `fair1_ppf.yaml`).", "",
+             "| character | clip | frames | frames with a fold | most flipped triangles | "
+             "joint miss (px) |", "|---|---|---|---|---|---|"]
+    for r in data["rows"]:
+        name = r["character"] if r["scene"] == r["character"] else f"{r['character']} (scene)"
+        lines.append(f"| {name} | {r['clip']} | {r['frames']} | {r['folded_frames']:.0%} | "
+                     f"{r['most_flipped']} | {r['joint_miss_px']:.2f} |")
+    return "\n".join(lines)
+
+
+CLIPS = ("dab", "jumping", "wave_hello", "zombie")
+SHEET_FRAMES = 8
+
+
+def sheets(examples: Path, out: Path, size: int = 200) -> list[dict]:
+    """For every character of `examples/characters` and every `fair1` clip (with
+    `fair1_ppf.yaml`), and for the two-character scene: a strip of `SHEET_FRAMES`
+    frames spread over the clip (one PNG per character, a row per clip), and the folds
+    of every frame with the default solver."""
+    import numpy as np
+
+    from mvcjax import export, motion
+
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    retarget = examples / "examples/config/retarget/fair1_ppf.yaml"
+    for character in sorted((examples / "examples/characters").glob("char[1-4]")):
+        strips = []
+        for clip in CLIPS:
+            scene = motion.Scene.from_files(
+                character, examples / f"examples/config/motion/{clip}.yaml", retarget)
+            strips.append(_strip(scene, size, rows, character.name, clip))
+        export.write_image(out / f"drawings-{character.name}.png", np.concatenate(strips, 0))
+    scene = motion.Scene.read(examples / "examples/config/mvc/multiple_characters_example.yaml")
+    export.write_image(out / "drawings-two-characters.png",
+                       _strip(scene, size, rows, "char1 + char2", "dab"))
+    return rows
+
+
+def _strip(scene, size: int, rows: list, character: str, clip: str):
+    """`SHEET_FRAMES` pictures of the scene side by side; its folds added to `rows`."""
+    import numpy as np
+
+    poses = scene.deform()
+    for actor, vertices in zip(scene.actors, poses):
+        report = actor.report(vertices)
+        rows.append({"kind": "example", "character": actor.drawing.config.path.parent.name,
+                     "scene": character, "clip": clip, "frames": scene.frames,
+                     "folded_frames": report.folded_frames,
+                     "most_flipped": int(report.flipped.max()),
+                     "joint_miss_px": float(report.joint_miss.max())})
+    shown = np.linspace(0, scene.frames - 1, SHEET_FRAMES).round().astype(int)
+    pictures = scene.pictures([v[shown] for v in poses], size=size, progress=False)
+    print(character, clip, rows[-1])
+    return np.concatenate(list(pictures), 1)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true",
                         help="30 frames, the default solver only, for CI")
     parser.add_argument("--peer", type=Path, default=os.environ.get("ANIMATED_DRAWINGS"),
                         help="AnimatedDrawings' source (default $ANIMATED_DRAWINGS)")
+    parser.add_argument("--peer-python", default=sys.executable,
+                        help="the Python that runs the peer (numpy 1, as it needs)")
     parser.add_argument("--examples", type=Path, default=DATA,
                         help="the folder holding AnimatedDrawings' examples/")
     parser.add_argument("--reference", help="write AnimatedDrawings' retargeting here")
+    parser.add_argument("--sheets", type=Path, help="write strips of frames of every "
+                        "example character and clip here (with --examples, a checkout)")
     parser.add_argument("--json", help="write the results to this JSON file")
     args = parser.parse_args(argv)
     if args.reference:
         write_reference(args.peer, args.examples.resolve(), os.path.abspath(args.reference))
+        return 0
+    if args.sheets:
+        rows = sheets(args.examples.resolve(), args.sheets)
+        if args.json:
+            write_results(args.json, rows, clips=list(CLIPS), retarget="fair1_ppf")
         return 0
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -235,7 +348,7 @@ def main(argv=None) -> int:
         from mvcjax import motion
 
         scene = motion.Scene.from_files(*paths)
-        rows.append({"kind": "per_frame", **per_frame(scene, peer_arap(args.peer))})
+        rows.append({"kind": "per_frame", **per_frame(scene, args.peer, args.peer_python)})
         print({k: v for k, v in rows[-1].items()})
         rows += poses(scene, fold_free=not args.quick)
     if args.json:

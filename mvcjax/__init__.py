@@ -5,7 +5,13 @@ options that only studies of the method need and the extension points are in
 `mvcjax.advanced`.
 """
 
-from . import advanced as advanced, datasets as datasets, export as export, generate as generate
+from . import (
+    advanced as advanced,
+    datasets as datasets,
+    export as export,
+    generate as generate,
+    motion as motion,
+)
 from ._animation import deform_frames as deform_frames
 from ._fit import fit_targets as fit_targets, image_loss as image_loss
 from ._interact import Posing as Posing, interact as interact
@@ -49,7 +55,7 @@ __all__ = [
     "GivenControl", "LevenbergMarquardt", "PaperControl", "Posing", "Renderer", "Rig",
     "Shape", "SizeLadder", "Weights", "advanced", "cut_out", "datasets", "deform_frames",
     "depth_from_handles", "export", "fit_targets", "fit_window", "flipped_triangles",
-    "generate", "image_loss", "image_mask", "interact", "load_image", "load_layers",
+    "generate", "image_loss", "image_mask", "interact", "load_image", "load_layers", "motion",
     "pixels_to_points", "points_to_pixels", "render",
 ]
 

@@ -178,7 +178,7 @@ def deform_frames(
     targets: Any,
     solver: Any = DEFAULT_SOLVER,
     *,
-    chunk: Any = 1024,
+    chunk: Any = None,
     devices: Any = None,
     out: Any = None,
     warm_start: bool = False,
@@ -200,7 +200,9 @@ def deform_frames(
             turned start (`Rig.start`).
         chunk: frames solved together on a device. Working memory grows little with
             it (a few numbers per control vertex and frame); the result itself takes
-            `frames * n * 2` numbers.
+            `frames * n * 2` numbers. Default: the solver's `frames_together` (1024 for
+            `FixedG`; 1, frame after frame inside the program, for `FoldFree`, whose
+            line searches run every frame of a batch as long as the slowest one's).
         out: optional, the result of an earlier call with as many frames, whose memory
             this call reuses: it is donated, and deleted (`out = deform_frames(rig,
             targets, out=out)` in a loop). Large results otherwise pay the kernel's page
@@ -225,7 +227,8 @@ def deform_frames(
     dtype = rig.handles.rest.dtype
     check_solver(solver)
     targets = _checked_frames(targets, h)
-    chunk = whole_number(chunk, "chunk", what=" of frames")
+    chunk = whole_number(solver.frames_together if chunk is None else chunk, "chunk",
+                         what=" of frames")
     if targets.shape[0] == 0:
         raise ValueError("targets hold no frames (shape (0, h, 2)); give at least one frame.")
     devices = _check_placement(as_devices(devices), out, warm_start)

@@ -11,6 +11,7 @@ import numpy as np
 import PIL.Image
 import pytest
 
+import mvcjax
 from mvcjax import motion
 
 DATA = Path(__file__).parent / "data" / "animated_drawings"
@@ -257,3 +258,42 @@ def test_animate_command_refuses_a_truncated_clip_and_writes_nothing(tmp_path):
                             capture_output=True, text=True)
     assert result.returncode != 0 and "cut.bvh" in result.stderr
     assert "truncated" in result.stderr and not out.exists()
+
+
+@pytest.mark.float64
+def test_the_pose_is_differentiable_in_the_bone_angles(tmp_path):
+    scene = motion.Scene.from_files(CHARACTER, short_motion(tmp_path, 6), RETARGET,
+                                    dtype=jnp.float64)
+    (actor,) = scene.actors
+    rig = actor.drawing.rig
+    root = jnp.asarray(actor.motion.root[5])
+    angles = jnp.asarray(actor.motion.angles[5])
+    weights = jnp.asarray(np.random.default_rng(1).normal(
+        size=rig.shape_mesh.vertices.shape))
+
+    def loss(a):
+        return jnp.sum(rig.deform(actor.drawing.targets(actor.motion.joints(a, root)))
+                       * weights)
+
+    grad = jax.jit(jax.grad(loss))(angles)
+    loss = jax.jit(loss)
+    h = 1e-5
+    for k in np.argsort(-np.abs(np.asarray(grad)))[:3]:
+        bump = jnp.zeros_like(angles).at[k].set(h)
+        numeric = (loss(angles + bump) - loss(angles - bump)) / (2 * h)
+        assert abs(float(numeric) - float(grad[k])) < 1e-4 * max(1.0, abs(float(numeric)))
+
+
+def test_the_picture_is_differentiable_in_the_bone_angles(scene):
+    (actor,) = scene.actors
+    rig = actor.drawing.rig
+    renderer = mvcjax.Renderer.build(rig, actor.drawing.picture, size=(40, 34))
+    root = jnp.asarray(actor.motion.root[5], jnp.float32)
+    angles = jnp.asarray(actor.motion.angles[5], jnp.float32)
+
+    def red(a):
+        targets = actor.drawing.targets(actor.motion.joints(a, root))
+        return jnp.sum(renderer(rig.deform(targets), renderer.window)[..., 0])
+
+    grad = jax.jit(jax.grad(red))(angles)
+    assert np.all(np.isfinite(grad)) and np.abs(grad).max() > 0

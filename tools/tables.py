@@ -13,8 +13,8 @@ fails, naming the page and the table, where a page differs from what its results
 The pages and their tables: `docs/benchmarks.md` (deform, solvers, animation, frames, throughput,
 many rigs, stack, interact, render), `docs/paper.md` (table1), `docs/folds.md` (folds, written by
 `folds.format_tables` as `benchmarks/folds.py --table ... --docs ...` writes it) and
-`docs/robustness.md` (robustness, once its results file exists) and `docs/guide.md`
-(jit-method, in its design notes).
+`docs/robustness.md` (robustness, once its results file exists), `docs/guide.md`
+(jit-method, in its design notes) and `docs/drawings.md` (drawings, drawings-examples).
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
 import animation
 import compile as compile_times
 import dataset
+import drawings
 import folds
 import jit_method
 import many_rigs
@@ -511,6 +512,9 @@ TABLES = [
     Table("docs/robustness.md", "robustness", _results("robustness"), robustness_table,
           optional=True),
     Table("docs/guide.md", "jit-method", _results("jit_method"), jit_method_table),
+    Table("docs/drawings.md", "drawings", _results("drawings"), drawings.format_table),
+    Table("docs/drawings.md", "drawings-examples", _results("drawings_examples"),
+          drawings.format_examples_table),
     Table("docs/how-it-works.md", "vmap-rules", _results("vmap_rules"), vmap_rules_table),
 ]
 

@@ -65,6 +65,7 @@ def _standing(motion: Motion, config: MotionConfig) -> tuple[np.ndarray, np.ndar
     direction in the first frame's turn."""
     up = (Rotation.from_euler("YX", [-90.0, -90.0], degrees=True).as_matrix()
           if config.up == "+z" else np.eye(3))
+    motion.index(config.ground, "groundplane_joint")  # named, so it must be there
     points = motion.positions @ up.T * config.scale
     points = points @ _facing_x(_forward(motion, points, config)[:1])[0].T
     forward = _forward(motion, points, config)

@@ -121,7 +121,7 @@ class Scene:
     def fps(self) -> float:
         return 1.0 / self.actors[0].motion.frame_time
 
-    def deform(self, solver: Any = None, *, chunk: Any = 1024) -> tuple[np.ndarray, ...]:
+    def deform(self, solver: Any = None, *, chunk: Any = None) -> tuple[np.ndarray, ...]:
         """Each character's `(frames, n, 2)` shape-mesh vertices at every frame
         (`deform_frames` with `solver`, default the rig's)."""
         options = {} if solver is None else {"solver": solver}

@@ -87,6 +87,8 @@ class AbstractSolver(eqx.Module):
     _REMOVED: ClassVar[dict[str, str]] = {}
     # Where users find the solver.
     _MODULE: ClassVar[str] = "mvcjax"
+    # How many frames `deform_frames` solves together (vmapped) by default.
+    frames_together: ClassVar[int] = 1024
 
     def __new__(cls, *args, **kwargs):
         refuse_removed(f"{cls.__name__}(...)", kwargs, cls._REMOVED)

@@ -4,6 +4,7 @@ minimised by Gauss-Newton steps that never cross a flat triangle."""
 from __future__ import annotations
 
 import functools
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -320,6 +321,10 @@ class FoldFree(AbstractSolver):
     """
 
     _REMOVED = CG_KEYWORDS_REMOVED
+
+    # Vmapped, its line searches and loops run every frame of a batch as long as the
+    # slowest one's: `deform_frames` solves its frames one after another.
+    frames_together: ClassVar[int] = 1
 
     barrier: float = eqx.field(default=1.0, static=True, converter=python_scalar)
     threshold: float = eqx.field(default=0.25, static=True, converter=python_scalar)
