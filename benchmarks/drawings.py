@@ -309,7 +309,10 @@ def _strip(scene, size: int, rows: list, character: str, clip: str):
     shown = np.linspace(0, scene.frames - 1, SHEET_FRAMES).round().astype(int)
     pictures = scene.pictures([v[shown] for v in poses], size=size, progress=False)
     print(character, clip, rows[-1])
-    return np.concatenate(list(pictures), 1)
+    square = np.zeros((len(pictures), size, size, 4), np.uint8)
+    top, left = (size - pictures.shape[1]) // 2, (size - pictures.shape[2]) // 2
+    square[:, top:top + pictures.shape[1], left:left + pictures.shape[2]] = pictures
+    return np.concatenate(list(square), 1)
 
 
 def main(argv=None) -> int:

@@ -44,8 +44,9 @@ print(f"{scene.frames} frames at {scene.fps:.0f} frames a second")
 # %% [markdown]
 # ## The character, its skeleton and its bones
 #
-# The mask traced to a shape; a `Bone` per skeleton bone; each triangle coloured by the
-# bone nearest it inside the shape (the body part whose draw order it follows).
+# The mask traced to a shape; a `Bone` per skeleton bone (a bone that would leave the
+# shape is pinned at its ends instead); each triangle coloured by the bone nearest it
+# inside the shape (the body part whose draw order it follows).
 
 # %%
 mesh = actor.drawing.rig.shape_mesh
@@ -54,8 +55,9 @@ rest = actor.motion.rest
 fig, axes = plt.subplots(1, 2, figsize=(10, 5.5))
 axes[0].imshow(actor.drawing.picture, extent=(-0.5, actor.drawing.picture.shape[1] - 0.5,
                                               -0.5, actor.drawing.picture.shape[0] - 0.5))
-for parent, child in actor.drawing.bones:
-    axes[0].plot(*rest[[parent, child]].T, "o-", color="tab:red")
+for child, parent in enumerate(actor.drawing.config.parents):
+    if parent >= 0:
+        axes[0].plot(*rest[[parent, child]].T, "o-", color="tab:red")
 axes[1].tripcolor(*vertices.T, faces, facecolors=actor.drawing.face_joints(faces) % 10,
                   cmap="tab10", edgecolors="none")
 for ax in axes:

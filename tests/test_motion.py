@@ -297,3 +297,24 @@ def test_the_picture_is_differentiable_in_the_bone_angles(scene):
 
     grad = jax.jit(jax.grad(red))(angles)
     assert np.all(np.isfinite(grad)) and np.abs(grad).max() > 0
+
+
+def test_a_bone_that_leaves_the_shape_is_pinned_at_its_ends(tmp_path):
+    # An L: a bar up, then right; the skeleton's last bone cuts across the corner.
+    mask = np.zeros((120, 120), np.uint8)
+    mask[10:110, 10:30] = 255
+    mask[10:30, 10:110] = 255
+    PIL.Image.fromarray(mask).save(tmp_path / "mask.png")
+    PIL.Image.fromarray(np.dstack([mask] * 3)).save(tmp_path / "texture.png")
+    joints = [("root", [20, 100], None), ("hip", [20, 100], "root"),
+              ("torso", [20, 60], "hip"), ("neck", [100, 20], "torso")]
+    (tmp_path / "char_cfg.yaml").write_text("height: 120\nwidth: 120\nskeleton:\n" + "".join(
+        f"- loc: [{x}, {y}]\n  name: {name}\n  parent: {parent or 'null'}\n"
+        for name, (x, y), parent in joints))
+    drawing = motion.Drawing.load(tmp_path)
+    # hip -> torso a bone; torso -> neck leaves the L: its end, the neck, a point.
+    assert drawing.rows.tolist() == [1, 2, 3]
+    assert drawing.rig.handles.count == 3
+    rest = motion.CharacterConfig.read(tmp_path).pixels
+    targets = np.asarray(drawing.targets(mvcjax.pixels_to_points(rest[:, ::-1], 120)))
+    np.testing.assert_allclose(targets, np.asarray(drawing.rig.handle_positions), atol=1e-4)

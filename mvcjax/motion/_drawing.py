@@ -9,6 +9,7 @@ from typing import Any
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+import shapely
 from jaxtyping import Array, ArrayLike, Float
 from scipy import ndimage
 
@@ -25,9 +26,11 @@ class Drawing(eqx.Module):
 
     Attributes:
         config: the character's files and skeleton.
-        rig: the `Rig` of its mask's shape, a `Bone` per skeleton bone of non-zero length
-            (parent to child), in `bones`' order.
-        bones: `(b, 2)` each bone's parent and child joint.
+        rig: the `Rig` of its mask's shape: a `Bone` per skeleton bone (parent to child)
+            that lies inside the shape; a bone that leaves it (a straight bone along a
+            curved, thin arm) is pinned at its ends instead, where they lie inside, as
+            AnimatedDrawings pins joints.
+        rows: `(r,)` the joint each row of the rig's targets follows.
         vertex_joint: `(n,)` the joint whose bone is nearest each shape-mesh vertex along
             the mesh (the child joint, which names the bone, as AnimatedDrawings does).
         picture: `(rows, cols, 4)` the texture, its alpha the mask.
@@ -35,7 +38,7 @@ class Drawing(eqx.Module):
 
     config: CharacterConfig = eqx.field(static=True)
     rig: Rig
-    bones: np.ndarray
+    rows: np.ndarray
     vertex_joint: np.ndarray
     picture: np.ndarray
 
@@ -56,23 +59,23 @@ class Drawing(eqx.Module):
         mask = _mask(config)
         rest = rest_points(config)
         _check_joints_on_mask(config, mask)
-        bones = np.array([(p, j) for j, p in enumerate(config.parents)
-                          if p >= 0 and np.hypot(*(rest[j] - rest[p])) > 0.5], int)
-        rig = Rig.build(Shape.from_image(mask), [Bone(rest[p], rest[j]) for p, j in bones],
-                        **build)
-        nearest = np.asarray(depth_from_handles(rig, np.repeat(np.arange(len(bones)), 2)))
+        shape = Shape.from_image(mask)
+        handles, rows, owners = _handles(shape, rest, config.parents)
+        rig = Rig.build(shape, handles, **build)
+        nearest = np.asarray(depth_from_handles(rig, owners))
         picture = load_image(config.texture)
         if picture.shape[:2] != mask.shape:
             raise ConfigError(f"{config.texture}: {picture.shape[1]}x{picture.shape[0]} "
                               f"pixels, but {config.mask} is {mask.shape[1]}x"
                               f"{mask.shape[0]}; the texture and the mask must match.")
         picture = np.concatenate([picture[..., :3], mask[..., None].astype(picture.dtype)], -1)
-        return cls(config=config, rig=rig, bones=bones,
-                   vertex_joint=bones[np.rint(nearest).astype(int), 1], picture=picture)
+        return cls(config=config, rig=rig, rows=rows,
+                   vertex_joint=np.rint(nearest).astype(int), picture=picture)
 
     def targets(self, joints: Float[ArrayLike, "*frames j 2"]) -> Float[Array, "*frames h 2"]:
-        """The rig's targets (each bone's start, then its end) from the joints' places."""
-        return jnp.asarray(joints)[..., self.bones.reshape(-1), :]
+        """The rig's targets (a bone's start, then its end; a point's joint) from the
+        joints' places."""
+        return jnp.asarray(joints)[..., self.rows, :]
 
     def face_joints(self, faces: Any) -> np.ndarray:
         """`(f,)` the joint each triangle follows in draw order: most of its vertices'."""
@@ -90,6 +93,35 @@ class Drawing(eqx.Module):
         weights = barycentric_coordinates(rest, rest_vertices[faces[face]])
         corners = np.asarray(vertices)[..., faces[face], :]
         return np.einsum("...jkd,jk->...jd", corners, weights)
+
+
+def _handles(shape: Shape, rest: np.ndarray, parents) -> tuple[list, np.ndarray, np.ndarray]:
+    """The rig's handles, the joint each target row follows, and each row's bone (its
+    child joint, which names it)."""
+    inside = shape.polygon.buffer(1e-6 * shape.diagonal)
+    handles, rows, owners, ends, loose = [], [], [], set(), []
+    for j, p in enumerate(parents):
+        if p < 0 or np.hypot(*(rest[j] - rest[p])) <= 0.5:
+            continue
+        if inside.covers(shapely.LineString([rest[p], rest[j]])):
+            handles.append(Bone(rest[p], rest[j]))
+            rows += [p, j]
+            owners += [j, j]
+            ends.update(_place(rest, (p, j)))
+        else:
+            loose += [(p, j), (j, j)]
+    for joint, owner in loose:
+        place = _place(rest, (joint,))[0]
+        if place not in ends and inside.covers(shapely.Point(rest[joint])):
+            handles.append(rest[joint])
+            rows.append(joint)
+            owners.append(owner)
+            ends.add(place)
+    return handles, np.array(rows, int), np.array(owners, float)
+
+
+def _place(rest: np.ndarray, joints) -> list[tuple[float, float]]:
+    return [tuple(np.round(rest[j], 6)) for j in joints]
 
 
 def _mask(config: CharacterConfig) -> np.ndarray:
