@@ -272,8 +272,8 @@ SHEET_FRAMES = 8
 def sheets(examples: Path, out: Path, size: int = 200) -> list[dict]:
     """For every character of `examples/characters` and every `fair1` clip (with
     `fair1_ppf.yaml`), and for the two-character scene: a strip of `SHEET_FRAMES`
-    frames spread over the clip (one PNG per character, a row per clip), and the folds
-    of every frame with the default solver."""
+    frames spread over the clip (one PNG per character, a row per clip; the window
+    follows the character), and the folds of every frame with the default solver."""
     import numpy as np
 
     from mvcjax import export, motion
@@ -307,7 +307,8 @@ def _strip(scene, size: int, rows: list, character: str, clip: str):
                      "most_flipped": int(report.flipped.max()),
                      "joint_miss_px": float(report.joint_miss.max())})
     shown = np.linspace(0, scene.frames - 1, SHEET_FRAMES).round().astype(int)
-    pictures = scene.pictures([v[shown] for v in poses], size=size, progress=False)
+    pictures = scene.pictures([v[shown] for v in poses], size=size, follow=True,
+                              progress=False)
     print(character, clip, rows[-1])
     square = np.zeros((len(pictures), size, size, 4), np.uint8)
     top, left = (size - pictures.shape[1]) // 2, (size - pictures.shape[2]) // 2

@@ -252,7 +252,8 @@ def _animate(args) -> int:
              f"frames (at most {report.flipped.max()} shape triangles)")
     t0 = time.perf_counter()
     progress = None if args.progress is None else args.progress == "on"
-    scene.write(files[-1], vertices=poses, size=args.size, progress=progress)
+    scene.write(files[-1], vertices=poses, size=args.size, follow=args.follow,
+                progress=progress)
     _say(f"  drew and wrote {files[-1]} in {time.perf_counter() - t0:.1f} s")
     return 0
 
@@ -275,6 +276,9 @@ def _parser() -> argparse.ArgumentParser:
                          help="solve with mvcjax.FoldFree (no fold, slower)")
     animate.add_argument("--size", type=int, default=None,
                          help="the pictures' longer side (default: the character's pixels)")
+    animate.add_argument("--follow", action="store_true",
+                         help="move the window with the characters (default: one window "
+                              "holds the whole animation)")
     animate.add_argument("--progress", choices=("on", "off"), default=None)
     return parser
 

@@ -318,3 +318,11 @@ def test_a_bone_that_leaves_the_shape_is_pinned_at_its_ends(tmp_path):
     rest = motion.CharacterConfig.read(tmp_path).pixels
     targets = np.asarray(drawing.targets(mvcjax.pixels_to_points(rest[:, ::-1], 120)))
     np.testing.assert_allclose(targets, np.asarray(drawing.rig.handle_positions), atol=1e-4)
+
+
+def test_a_following_window_keeps_the_character_in_the_middle(scene):
+    pictures = scene.pictures(size=48, follow=True, progress=False)
+    for picture in pictures:
+        rows, cols = np.nonzero(picture[..., 3] > 127)
+        middle = np.array([rows.min() + rows.max(), cols.min() + cols.max()]) / 2
+        np.testing.assert_allclose(middle, (np.array(picture.shape[:2]) - 1) / 2, atol=2)

@@ -130,19 +130,26 @@ class Scene:
                      for a in self.actors)
 
     def pictures(self, vertices: Any = None, *, solver: Any = None, size: Any = None,
-                 progress: Any = None) -> np.ndarray:
+                 follow: bool = False, progress: Any = None) -> np.ndarray:
         """`(frames, rows, cols, 4)` uint8 RGBA pictures of every frame, characters drawn
         back to front, each body part in its clip's draw order.
 
         Args:
             vertices: each character's poses (`deform`'s); default `deform(solver)`.
-            size: the pictures' longer side in pixels (default: a pixel of the first
+            size: the pictures' longer side in pixels (default: a pixel of the largest
                 character's picture, at most 1024).
+            follow: False (default): one window holds the whole animation, as a camera
+                standing still (a character walking across it stays small); True: the
+                window moves with the characters, their bounding box centred each frame.
             progress: a progress bar (`Renderer.frames`').
         """
         vertices = self.deform(solver) if vertices is None else vertices
         unit = float(max(max(a.drawing.config.size) for a in self.actors))
         placed = [a.to_scene(np.asarray(v), unit) for a, v in zip(self.actors, vertices)]
+        if follow:
+            low = np.min([p.min(axis=1) for p in placed], axis=0)
+            high = np.max([p.max(axis=1) for p in placed], axis=0)
+            placed = [p - 0.5 * (low + high)[:, None] for p in placed]
         window = fit_window(np.concatenate([p.reshape(-1, 2) for p in placed]))
         extent = np.array(window[2:]) - window[:2]
         longest = min(_MAX_SIDE, int(np.ceil(extent.max()))) if size is None else int(size)
@@ -157,11 +164,12 @@ class Scene:
         return out
 
     def write(self, path: Any, *, vertices: Any = None, solver: Any = None, size: Any = None,
-              progress: Any = None, **options: Any) -> None:
+              follow: bool = False, progress: Any = None, **options: Any) -> None:
         """Write the animation: a GIF, MP4, animated PNG or WebP (`export.write_animation`
         with `**options`), or, for a path without a suffix, a folder of PNG frames.
-        `vertices`, `solver`, `size`, `progress`: as `pictures` takes them."""
-        pictures = self.pictures(vertices, solver=solver, size=size, progress=progress)
+        `vertices`, `solver`, `size`, `follow`, `progress`: as `pictures` takes them."""
+        pictures = self.pictures(vertices, solver=solver, size=size, follow=follow,
+                                 progress=progress)
         path = Path(os.fspath(path))
         if path.suffix:
             write_animation(path, pictures, fps=self.fps, progress=progress, **options)
