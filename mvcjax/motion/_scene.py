@@ -57,12 +57,14 @@ class Actor:
         held = np.minimum(np.arange(frames), len(ranks) - 1)
         return 2 * ranks[held][:, self.drawing.face_joints(faces)]
 
-    def report(self, vertices: Any) -> PoseReport:
-        """How well the poses `(frames, n, 2)` (`Scene.deform`'s) follow the clip."""
+    def report(self, vertices: Any, frames: Any = None) -> PoseReport:
+        """How well the poses `(f, n, 2)` (`Scene.deform`'s) follow the clip: poses of its
+        `frames` (`(f,)` indices; default its first `f`, the last held past its end)."""
         vertices = np.asarray(vertices)
         mesh = self.drawing.rig.shape_mesh
         joints = np.asarray(self.motion.joints())
-        held = np.minimum(np.arange(len(vertices)), len(joints) - 1)
+        held = np.minimum(np.arange(len(vertices)) if frames is None else np.asarray(frames),
+                          len(joints) - 1)
         miss = np.linalg.norm(self.drawing.joints_on(vertices) - joints[held], axis=-1)
         return PoseReport(joint_miss=miss.max(axis=-1),
                           flipped=np.asarray(flipped_triangles(mesh.vertices, vertices,
