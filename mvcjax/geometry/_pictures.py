@@ -69,10 +69,16 @@ def to_bytes(picture: np.ndarray, matte_rgb: np.ndarray | None) -> np.ndarray:
     if matte_rgb is None or picture.shape[-1] == 3:
         return picture
     # Composited from the rounded bytes, so that float pictures and their to_uint8 give
-    # the same files, at the cost of at most one level.
-    colour = picture[..., :3].astype(np.float32)
-    alpha = picture[..., 3:].astype(np.float32) * np.float32(1 / 255)
-    return (colour * alpha + (255 * matte_rgb) * (1 - alpha) + 0.5).astype(np.uint8)
+    # the same files, at the cost of at most one level: `colour * alpha + matte * (1 -
+    # alpha)`, rounded, looked up in a table of every (alpha, colour) pair per channel.
+    alpha = (np.arange(256, dtype=np.float32) * np.float32(1 / 255))[:, None]
+    colour = np.arange(256, dtype=np.float32)[None, :]
+    out = np.empty((*picture.shape[:-1], 3), np.uint8)
+    index = picture[..., 3].astype(np.int32) << 8
+    for c in range(3):
+        table = (colour * alpha + (255 * matte_rgb[c]) * (1 - alpha) + 0.5).astype(np.uint8)
+        np.take(table.ravel(), index | picture[..., c], out=out[..., c])
+    return out
 
 
 def to_uint8(pictures: Any, *, matte: Any = None) -> np.ndarray:
