@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from .._animation import deform_frames
+from ..core import whole_number
 from ..export import write_animation, write_image
 from ..geometry import flipped_triangles
 from ..rendering import Renderer, fit_window
@@ -154,7 +155,8 @@ class Scene:
             placed = [p - 0.5 * (low + high)[:, None] for p in placed]
         window = fit_window(np.concatenate([p.reshape(-1, 2) for p in placed]))
         extent = np.array(window[2:]) - window[:2]
-        longest = min(_MAX_SIDE, int(np.ceil(extent.max()))) if size is None else int(size)
+        longest = (min(_MAX_SIDE, int(np.ceil(extent.max()))) if size is None
+                   else whole_number(size, "size", what=" of pixels"))
         shape = tuple(int(v) for v in np.maximum(np.rint(extent[::-1] / extent.max() * longest), 1))
         out = None
         for actor, poses in zip(self.actors, placed):
@@ -162,7 +164,11 @@ class Scene:
             renderer = Renderer.build(rig, actor.drawing.picture, window=window, size=shape)
             drawn = renderer.frames(poses, levels=actor.levels(renderer.faces, len(poses)),
                                     progress=progress)
-            out = drawn if out is None else _over(drawn, out)
+            if out is None:
+                out = drawn
+                continue
+            for frame, picture in enumerate(drawn):  # a frame at a time: little memory
+                out[frame] = _over(picture, out[frame])
         return out
 
     def write(self, path: Any, *, vertices: Any = None, solver: Any = None, size: Any = None,
