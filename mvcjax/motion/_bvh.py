@@ -168,7 +168,8 @@ def read_bvh(path: Any, start: int = 0, stop: int | None = None) -> Motion:
 
     Args:
         path: the `.bvh` file.
-        start, stop: the frames to keep, `frames[start:stop]` (default: all).
+        start: the first frame to keep (default 0).
+        stop: the frame after the last one kept (default: all), `frames[start:stop]`.
 
     Returns:
         A `Motion`. Refused with a `BVHError` naming the file and the line: a truncated
