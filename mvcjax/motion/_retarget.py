@@ -26,7 +26,6 @@ class Retargeted:
     """A clip retargeted onto a character, every frame.
 
     Attributes:
-        rest: `(j, 2)` the character's joints at rest, in its picture's points (y up).
         angles: `(frames, k)` each mapped joint's bone angle, radians counter-clockwise
             from +y, in `RetargetConfig.mapping`'s order (`joints` is their function).
         root: `(frames, 2)` the root's offset from rest.
@@ -37,7 +36,6 @@ class Retargeted:
 
     character: CharacterConfig
     mapped: tuple[str, ...]
-    rest: np.ndarray
     angles: np.ndarray
     root: np.ndarray
     depths: np.ndarray
@@ -51,6 +49,11 @@ class Retargeted:
         angles = jnp.asarray(self.angles if angles is None else angles)
         root = jnp.asarray(self.root if root is None else root)
         return pose_joints(self.character, self.mapped, self.rest, angles, root)
+
+    @property
+    def rest(self) -> np.ndarray:
+        """`(j, 2)` the character's joints at rest, in its picture's points (y up)."""
+        return rest_points(self.character)
 
     def part_order(self) -> np.ndarray:
         """`(frames, j)` each joint's draw rank (higher on top): the parts sorted by
@@ -135,7 +138,7 @@ def _chain_length(points: np.ndarray, chains) -> float:
                      for chain in chains for a, b in itertools.pairwise(chain)))
 
 
-def _root_path(motion, root, forward, normal, scale) -> np.ndarray:
+def _root_path(root, forward, normal, scale) -> np.ndarray:
     """`(F, 2)` the character's root offset: the clip root's steps, scaled, along the
     forward (sagittal) or sideways (frontal) direction, and up."""
     side = forward if normal == _SAGITTAL else forward[:, ::-1] * np.array([-1, 1, -1])
@@ -145,6 +148,7 @@ def _root_path(motion, root, forward, normal, scale) -> np.ndarray:
 
 
 def rest_points(character: CharacterConfig) -> np.ndarray:
+    """`(j, 2)` the character's joints in its picture's points (y up)."""
     return pixels_to_points(character.pixels[:, ::-1], character.size[0])
 
 
@@ -195,9 +199,9 @@ def retarget(character: CharacterConfig, motion: Motion, motion_config: MotionCo
     for joints, _ in config.parts:
         for name in joints:
             _char_index(character, name, config)
-    return Retargeted(character=character, mapped=mapped, rest=rest,
+    return Retargeted(character=character, mapped=mapped,
                       angles=_bone_angles(motion, relative, joint_normal, config, mapped),
-                      root=_root_path(motion, root, forward, normals[config.offset_group], scale),
+                      root=_root_path(root, forward, normals[config.offset_group], scale),
                       depths=_depths(motion, relative, joint_normal, config),
                       frame_time=motion_config.frame_time or motion.frame_time,
                       parts=tuple(joints for joints, _ in config.parts))
@@ -225,7 +229,8 @@ def pose_joints(character: CharacterConfig, mapped, rest, angles, root):
     start = np.arctan2(*(rest - rest[np.maximum(parents, 0)])[:, ::-1].T) - np.pi / 2
     local = [jnp.zeros(angles.shape[:-1], angles.dtype) for _ in names]
     current: dict[int, Array] = {}
-    for j in _depth_first(parents):
+    order = _depth_first(parents)
+    for j in order:
         if names[j] in mapped:
             theta = angles[..., mapped.index(names[j])] - start[j]
             current[j] = theta
@@ -233,7 +238,7 @@ def pose_joints(character: CharacterConfig, mapped, rest, angles, root):
             local[p] = theta - current[p] if p in current else theta
     turn: list = [None] * len(names)
     place: list = [None] * len(names)
-    for j in _depth_first(parents):
+    for j in order:
         p = parents[j]
         if p < 0:
             turn[j] = local[j]

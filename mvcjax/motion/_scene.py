@@ -43,20 +43,17 @@ class Actor:
 
     drawing: Drawing
     motion: Retargeted
-    start: np.ndarray  # char_starting_location: x, y in picture heights, z the depth
+    start: np.ndarray  # char_starting_location: x, y in pictures' sizes, z the depth
 
     def targets(self, frames: int) -> np.ndarray:
         """`(frames, h, 2)` the rig's targets, the clip's last frame held past its end."""
         joints = np.asarray(self.motion.joints())
-        held = np.minimum(np.arange(frames), len(joints) - 1)
-        return np.asarray(self.drawing.targets(joints[held]))
+        return np.asarray(self.drawing.targets(joints[_held(np.arange(frames), joints)]))
 
     def levels(self, faces: Any, frames: int) -> np.ndarray:
-        """`(frames, f)` each triangle's draw level: its body part's rank (two levels
-        apart, the raster's second layer raising a candidate by one)."""
+        """`(frames, f)` each triangle's draw level: its body part's rank that frame."""
         ranks = self.motion.part_order()
-        held = np.minimum(np.arange(frames), len(ranks) - 1)
-        return 2 * ranks[held][:, self.drawing.face_joints(faces)]
+        return ranks[_held(np.arange(frames), ranks)][:, self.drawing.face_joints(faces)]
 
     def report(self, vertices: Any, frames: Any = None) -> PoseReport:
         """How well the poses `(f, n, 2)` (`Scene.deform`'s) follow the clip: poses of its
@@ -64,8 +61,8 @@ class Actor:
         vertices = np.asarray(vertices)
         mesh = self.drawing.rig.shape_mesh
         joints = np.asarray(self.motion.joints())
-        held = np.minimum(np.arange(len(vertices)) if frames is None else np.asarray(frames),
-                          len(joints) - 1)
+        held = _held(np.arange(len(vertices)) if frames is None else np.asarray(frames),
+                     joints)
         miss = np.linalg.norm(self.drawing.joints_on(vertices) - joints[held], axis=-1)
         return PoseReport(joint_miss=miss.max(axis=-1),
                           flipped=np.asarray(flipped_triangles(mesh.vertices, vertices,
@@ -185,6 +182,11 @@ class Scene:
         path.mkdir(parents=True, exist_ok=True)
         for i, picture in enumerate(pictures):
             write_image(path / f"frame_{i:04d}.png", picture, **options)
+
+
+def _held(frames: np.ndarray, clip: np.ndarray) -> np.ndarray:
+    """The clip's frames shown at `frames`: its last one held past its end."""
+    return np.minimum(frames, len(clip) - 1)
 
 
 def _over(top: np.ndarray, bottom: np.ndarray) -> np.ndarray:
