@@ -128,7 +128,8 @@ def run(rig, mode: str, size: int, moves: int, solver: str, shows: list[bool],
 
     options = {"solver": _solver(solver)}
     if mode == "textured":
-        options.update({"size": (size, size)} if size else {"fill": "checkerboard"})
+        options.update({"size": (size, size)} if size
+                       else {"fill": mvcjax.advanced.Checkerboard()})
     sessions, first_ms, redraw_ms = [], [], []
     for show in shows:
         t0 = time.perf_counter()

@@ -114,7 +114,7 @@ def missing_for_window() -> str | None:
 
 
 def _setup(spacing: float | None, textured: bool) -> str:
-    texture = ', fill="checkerboard"' if textured else ""
+    texture = ', fill=mvcjax.advanced.Checkerboard()' if textured else ""
     return SETUP.format(spacing=repr(spacing), texture=texture)
 
 

@@ -59,7 +59,7 @@ def _cases(rig, frames: int, picture_size: int) -> dict:
     solver = mvcjax.FixedG()
     local = jax.vmap(rig.frame.to_local)(targets)
     pinned = jax.vmap(rig.handles.pinned_targets)(local)
-    starts = jax.vmap(lambda t: rig._local_start(t, "turned"))(local)
+    starts = jax.vmap(lambda t: rig._local_start(t, mvcjax.advanced.TurnedStart()))(local)
 
     def solve_with(fn, count=frames):
         solve = jax.jit(jax.vmap(lambda p, s: fn(rig.energy, rig.factor, p, s)[0]))

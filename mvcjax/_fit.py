@@ -15,7 +15,7 @@ that far; the fit runs from a wide blur down to none (coarse to fine)."""
 from __future__ import annotations
 
 import warnings
-from typing import Any
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax
@@ -24,12 +24,39 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
-from .core import compiled_by, kind_of, whole_number
+from .core import compiled_by, kind_of, refuse_string, whole_number
 from .rendering import Renderer, as_picture, check_drawn_mesh, in_window
 from .rig import AbstractRig
 from .solvers import DEFAULT_SOLVER, AbstractSolver, check_solver
 
-_CHANNELS = ("rgba", "alpha")
+
+class AbstractChannels(eqx.Module):
+    """What `image_loss` and `fit_targets` compare (`channels=`): `RGBAChannels()` or
+    `AlphaChannel()`.
+
+    Attributes:
+        weights: the weight of each premultiplied channel (R, G, B, A) in the loss.
+        takes_mask: whether a `(rows, cols)` mask is a picture to compare with.
+    """
+
+    weights: ClassVar[tuple[float, float, float, float]]
+    takes_mask: ClassVar[bool]
+
+
+class RGBAChannels(AbstractChannels):
+    """Premultiplied colour and alpha: the picture as it is drawn. The default."""
+
+    weights: ClassVar[tuple[float, float, float, float]] = (1.0, 1.0, 1.0, 1.0)
+    takes_mask: ClassVar[bool] = False
+
+
+class AlphaChannel(AbstractChannels):
+    """Coverage only: silhouettes, against an RGBA picture's alpha or a `(rows, cols)`
+    mask."""
+
+    weights: ClassVar[tuple[float, float, float, float]] = (0.0, 0.0, 0.0, 1.0)
+    takes_mask: ClassVar[bool] = True
+
 
 
 class FitResult(eqx.Module):
@@ -67,10 +94,13 @@ class FitResult(eqx.Module):
 # ---- checks ---------------------------------------------------------------------------
 
 
-def _check_channels(channels) -> str:
-    if channels not in _CHANNELS:
-        raise ValueError(f"channels must be 'rgba' (compare premultiplied colour) or 'alpha' "
-                         f"(compare silhouettes only), got {channels!r}.")
+def _check_channels(channels) -> AbstractChannels:
+    refuse_string("channels", channels, {"rgba": "mvcjax.advanced.RGBAChannels()",
+                                         "alpha": "mvcjax.advanced.AlphaChannel()"})
+    if not isinstance(channels, AbstractChannels):
+        raise TypeError(f"channels must be mvcjax.advanced.RGBAChannels() (compare "
+                        f"premultiplied colour) or mvcjax.advanced.AlphaChannel() (compare "
+                        f"silhouettes only), got {channels!r}.")
     return channels
 
 
@@ -134,7 +164,7 @@ def _check_in_view(rig, renderer, targets) -> None:
                       f"go; {hint}.", stacklevel=3)
 
 
-def _prepare_picture(picture, renderer: Any, channels: str) -> Array:
+def _prepare_picture(picture, renderer: Renderer, channels: AbstractChannels) -> Array:
     """The target as the loss compares it: `(rows, cols, 4)` premultiplied RGBA (a mask
     is its alpha, black), in the renderer's dtype. Concrete pictures may be anything
     `load_image` reads (alpha: also a `(rows, cols)` mask); traced ones must already be
@@ -143,7 +173,7 @@ def _prepare_picture(picture, renderer: Any, channels: str) -> Array:
     dtype = renderer.window.dtype
     if isinstance(picture, jax.core.Tracer):
         array = picture
-    elif channels == "alpha" and not isinstance(picture, str) and np.ndim(picture) == 2:
+    elif channels.takes_mask and not isinstance(picture, str) and np.ndim(picture) == 2:
         array = np.asarray(picture)
         if array.dtype.kind not in "biuf":
             raise TypeError(f"picture must be a mask of numbers or booleans, got "
@@ -155,11 +185,11 @@ def _prepare_picture(picture, renderer: Any, channels: str) -> Array:
             raise ValueError("picture (a mask) must hold values in [0, 1] (coverage), or "
                              "booleans.")
     else:
-        if (channels == "alpha" and not isinstance(picture, str)
+        if (channels.takes_mask and not isinstance(picture, str)
                 and np.ndim(picture) == 3 and np.shape(picture)[2] == 3):
             raise ValueError("picture is RGB, which has no alpha to compare silhouettes "
                              "with: pass a (rows, cols) mask, an RGBA picture, or use "
-                             "channels='rgba'.")
+                             "channels=mvcjax.advanced.RGBAChannels().")
         array = as_picture(picture, "picture")
     shape = tuple(array.shape)
     if shape[:2] != (rows, cols):
@@ -167,14 +197,16 @@ def _prepare_picture(picture, renderer: Any, channels: str) -> Array:
                          f"renderer draws {rows} x {cols} (renderer.shape): resize the "
                          f"picture, or build the renderer with size={shape[:2]}.")
     if array.ndim == 2:
-        if channels != "alpha":
+        if not channels.takes_mask:
             raise ValueError(f"picture of shape {shape} is a mask: compare silhouettes with "
-                             "channels='alpha', or pass (rows, cols, 4) RGBA.")
+                             "channels=mvcjax.advanced.AlphaChannel(), or pass (rows, cols, "
+                             "4) RGBA.")
         mask = jnp.asarray(array, dtype)[..., None]
         return jnp.concatenate([jnp.zeros_like(mask)] * 3 + [mask], axis=-1)
     if array.ndim != 3 or shape[2] != 4:
         raise ValueError(f"picture must be ({rows}, {cols}, 4) straight RGBA (or a "
-                         f"({rows}, {cols}) mask with channels='alpha'), got shape {shape}.")
+                         f"({rows}, {cols}) mask with channels=AlphaChannel()), got shape "
+                         f"{shape}.")
     array = jnp.asarray(array, dtype)
     return _premultiplied(array)
 
@@ -212,11 +244,11 @@ def _blurred(picture, blur):
     return jnp.einsum("ij,jk...,lk->il...", down, picture, across)
 
 
-def _weights(channels: str, dtype):
+def _weights(channels: AbstractChannels, dtype):
     """The weight of each premultiplied channel in the loss. An array, not a choice of
     program: a silhouette fit and a colour fit of the same sizes share one compilation
     (the zero colour residuals of a silhouette cost little beside the render)."""
-    return jnp.asarray([0.0, 0.0, 0.0, 1.0] if channels == "alpha" else [1.0] * 4, dtype)
+    return jnp.asarray(channels.weights, dtype)
 
 
 def _residuals(rig, renderer, solver, weights, targets, target_picture, blur):
@@ -234,7 +266,7 @@ def image_loss(
     targets: Real[ArrayLike, "h 2"],
     picture: Any,
     *,
-    channels: Any = "rgba",
+    channels: AbstractChannels | str = RGBAChannels(),  # a string: refused, naming the object
     blur: Real[ArrayLike, ""] = 0.0,
     solver: Any = None,
 ) -> Float[Array, ""]:
@@ -253,11 +285,12 @@ def image_loss(
         picture: the target picture, `renderer.shape` = `(rows, cols)` pixels: straight
             RGBA `(rows, cols, 4)` (RGB `(rows, cols, 3)` is opaque; outside `jit` also
             integers, a grey picture or a file path, as `load_image` reads), or with
-            `channels="alpha"` a `(rows, cols)` mask of coverage in [0, 1]. Inside a
-            transformation it must be floats in [0, 1] of shape `(rows, cols, 4)`, or
-            `(rows, cols)` for `"alpha"`.
-        channels: `"rgba"` compares premultiplied colour and alpha; `"alpha"` compares
-            silhouettes (coverage) only.
+            `channels=AlphaChannel()` a `(rows, cols)` mask of coverage in [0, 1].
+            Inside a transformation it must be floats in [0, 1] of shape
+            `(rows, cols, 4)`, or `(rows, cols)` for `AlphaChannel()`.
+        channels: what is compared (in `mvcjax.advanced`): `RGBAChannels()` (default)
+            premultiplied colour and alpha; `AlphaChannel()` silhouettes (coverage)
+            only.
         blur: the standard deviation, in pixels, of a Gaussian blur of both pictures
             (0: none). A wider blur lets the gradient see a silhouette or a texture
             further away than the one-pixel antialiased edge.
@@ -421,7 +454,7 @@ def fit_targets(
     picture: Any,
     *,
     init: Real[ArrayLike, "h 2"] | None = None,
-    channels: Any = "rgba",
+    channels: AbstractChannels | str = RGBAChannels(),  # a string: refused, naming the object
     blurs: Any = (4.0, 2.0, 1.0, 0.0),
     steps: Any = 30,
     rtol: float = 1e-4,
@@ -451,7 +484,8 @@ def fit_targets(
         picture: the target picture, `renderer.shape` pixels: see `image_loss`.
         init: `(h, 2)` the starting targets; default the rest pose,
             `rig.handle_positions`.
-        channels: `"rgba"` (colour) or `"alpha"` (silhouette only), as in `image_loss`.
+        channels: `RGBAChannels()` (colour) or `AlphaChannel()` (silhouette only), as in
+            `image_loss`.
         blurs: the standard deviation of each stage's Gaussian blur, in pixels, e.g.
             `(4.0, 2.0, 1.0, 0.0)`: the first about as wide as the largest move to
             recover (half of it worked on the horse), the last 0 for a sharp fit.

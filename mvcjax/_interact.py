@@ -36,7 +36,7 @@ from .core import is_real_number, is_whole_number
 from .export import write_animation
 from .geometry import barycentric_coordinates, boundary_loops, edges, locate_points, signed_areas
 from .rendering import Renderer, check_drawn_mesh, check_window, fit_window, in_window
-from .rig import AbstractRig, pin_state, pinned_row, with_pin_state, with_rows
+from .rig import AbstractRig, Init, TurnedStart, pin_state, pinned_row, with_pin_state, with_rows
 from .solvers import DEFAULT_SOLVER, AbstractSolver, FoldFree, check_solver
 
 _HANDLE_STYLE = {"marker": "o", "markersize": 9, "color": "tab:red", "markeredgecolor": "white",
@@ -55,7 +55,7 @@ _HINT_FONT_POINTS = 8.0
 
 
 def _pose(rig: AbstractRig, renderer: Renderer | None, solver: AbstractSolver,
-          rest_sign: np.ndarray, targets: Float[Array, "h 2"], init: Any = "turned"):
+          rest_sign: np.ndarray, targets: Float[Array, "h 2"], init: Init = TurnedStart()):
     """The control and shape meshes for these targets, solved from `init`; with a
     renderer, the picture as `uint8` RGBA (a quarter of the bytes to hand to matplotlib,
     which draws those fastest); which shape triangles are flipped (their signed area's

@@ -29,7 +29,7 @@ from ._animation import deform_frames
 from .core import as_devices, is_real_number, progress_bar, whole_number
 from .datasets import glyph, glyph_handles
 from .geometry import Shape, cut_out, flipped_triangles, load_image
-from .rendering import Renderer, check_size, fill_texture, fit_window, to_pixels
+from .rendering import Checkerboard, Renderer, check_size, fill_texture, fit_window, to_pixels
 from .rig import Rig
 
 FORMAT = "mvcjax-posed-dataset"
@@ -215,7 +215,7 @@ def write_dataset(
             name and the unit's number only.
         batch: poses per unit (per file, and per compiled batch).
         fill: how sprites given as a `Shape` are drawn: a colour `(r, g, b)` in [0, 1],
-            or `"checkerboard"` (`Renderer.build`'s `fill`).
+            or `mvcjax.advanced.Checkerboard()` (`Renderer.build`'s `fill`).
         rig_options: more keyword arguments of `Rig.build` (e.g. `shape_spacing`).
         progress: a progress bar (tqdm): True, False, or None for one on a terminal.
         devices: the devices this process poses and draws on (default: all of
@@ -259,7 +259,7 @@ class _Job:
     cols: int
     limits: PoseLimits
     seed: int
-    fill: Any
+    fill: Checkerboard | list[float]
     handles: Callable | None
     rig_options: dict
     process_index: int
@@ -271,7 +271,8 @@ class _Job:
         return {
             "format": FORMAT, "version": VERSION, "size": [self.rows, self.cols],
             "poses": self.poses, "batch": self.batch, "seed": self.seed,
-            "limits": dataclasses.asdict(self.limits), "fill": self.fill,
+            "limits": dataclasses.asdict(self.limits),
+            "fill": self.fill if isinstance(self.fill, list) else repr(self.fill),
             "handles": _name_of(self.handles), "rig_options": repr(self.rig_options),
         }
 
@@ -292,7 +293,7 @@ def _checked_job(poses, size, limits, handles, seed, batch, fill, rig_options, d
                         f"{type(limits).__name__}.")
     seed = whole_number(seed, "seed", minimum=0)
     fill_texture(fill, np.zeros((1, 2)))  # refused here, naming it, rather than per sprite
-    fill = fill if isinstance(fill, str) else [float(c) for c in fill]  # as JSON has it
+    fill = fill if isinstance(fill, Checkerboard) else [float(c) for c in fill]  # as JSON has it
     if handles is not None and not callable(handles):
         raise TypeError(f"handles must be a function of the Shape giving its handles, got "
                         f"{type(handles).__name__}.")

@@ -130,7 +130,7 @@ def report(result, picture, channels):
     return errors
 
 
-textured_errors = report(textured, target, "rgba")
+textured_errors = report(textured, target, mvcjax.advanced.RGBAChannels())
 assert bool(textured.fit_converged) and textured_errors.max() < 0.1
 
 # %% [markdown]
@@ -177,13 +177,14 @@ plot_fit(textured, found, target,
 # %% [markdown]
 # ## From the silhouette alone
 # Now the target is only a mask, the alpha of the true pose's picture, and
-# `channels="alpha"` compares coverage only. Inside the shape, coverage is 1 whatever the
-# pose: every gradient comes from the boundary. The renderer antialiases the mesh's
-# boundary edges: a pixel whose centre lies at signed distance `d` (in pixels, positive
-# inside) from a boundary edge is covered `clip(0.5 + d, 0, 1)`, a linear ramp one pixel
-# wide (see the module docstring of `mvcjax/rendering/_render.py`). Coverage is a smooth
-# function of the edge's vertices there, so the pixels the outline crosses tell each
-# vertex which way to go, and `rig.deform` carries that back to the handles.
+# `channels=mvcjax.advanced.AlphaChannel()` compares coverage only. Inside the shape,
+# coverage is 1 whatever the pose: every gradient comes from the boundary. The renderer
+# antialiases the mesh's boundary edges: a pixel whose centre lies at signed distance
+# `d` (in pixels, positive inside) from a boundary edge is covered `clip(0.5 + d, 0,
+# 1)`, a linear ramp one pixel wide (see the module docstring of
+# `mvcjax/rendering/_render.py`). Coverage is a smooth function of the edge's vertices
+# there, so the pixels the outline crosses tell each vertex which way to go, and
+# `rig.deform` carries that back to the handles.
 #
 # One pixel wide is also the catch. A pixel's coverage changes only while an edge
 # crosses it, so the sharp loss is a sum of ramps one pixel wide: it is kinked
@@ -199,12 +200,13 @@ plot_fit(textured, found, target,
 
 # %%
 mask = target[..., 3]
+alpha = mvcjax.advanced.AlphaChannel()  # what the loss compares: coverage only
 
 
 @jax.jit
 def loss_along(s, blur):
     targets = true_targets.at[0].set((1 - s) * rest_targets[0] + s * true_targets[0])
-    return mvcjax.image_loss(rig, renderer, targets, mask, channels="alpha", blur=blur)
+    return mvcjax.image_loss(rig, renderer, targets, mask, channels=alpha, blur=blur)
 
 
 line = np.linspace(-0.3, 1.3, 49)
@@ -227,17 +229,17 @@ plt.show()
 
 # %%
 start = time.perf_counter()
-silhouette = mvcjax.fit_targets(rig, renderer, mask, channels="alpha", blurs=blurs, steps=40)
+silhouette = mvcjax.fit_targets(rig, renderer, mask, channels=alpha, blurs=blurs, steps=40)
 jax.block_until_ready(silhouette.targets)
 seconds = time.perf_counter() - start
 steps = int(silhouette.steps.sum())
 print(f"{seconds:.2f} s for {steps} steps, {1e3 * seconds / steps:.0f} ms a step")
 print("steps per stage:", np.asarray(silhouette.steps), " converged:",
       np.asarray(silhouette.converged))
-silhouette_errors = report(silhouette, mask, "alpha")
+silhouette_errors = report(silhouette, mask, alpha)
 assert bool(silhouette.fit_converged) and silhouette_errors.max() < 0.1
 
-sharp = mvcjax.fit_targets(rig, renderer, mask, channels="alpha", blurs=(0.0,), steps=40,
+sharp = mvcjax.fit_targets(rig, renderer, mask, channels=alpha, blurs=(0.0,), steps=40,
                            warn=False)
 sharp_errors = np.linalg.norm(np.asarray(sharp.targets - true_targets), axis=1) / pixel
 print(f"without blur: target errors max {sharp_errors.max():.2g} px, mean "
@@ -270,7 +272,7 @@ with jax.enable_x64(True):
     @jax.jit
     @jax.value_and_grad
     def loss64(targets, blur):
-        return mvcjax.image_loss(rig64, renderer64, targets, mask64, channels="alpha",
+        return mvcjax.image_loss(rig64, renderer64, targets, mask64, channels=alpha,
                                  blur=blur)
 
     h = 1e-6  # plane units

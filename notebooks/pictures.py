@@ -193,7 +193,7 @@ pose = turn(pose, "right leg", 8)
 pose[0] += (-6.0, -2.0)  # the head leans
 # The arm turns far: the default starts from the bones' turns spread over the mesh and
 # comes near the minimum (the paper's 15 fixed-G steps from rest, `mvcjax.FixedG()` with
-# `init="rest"`, would leave the raised forearm thin and the hand squashed).
+# `init=mvcjax.advanced.RestStart()`, would leave the raised forearm thin and the hand squashed).
 posed = rig.deform(pose)
 
 renderer = mvcjax.Renderer.build(rig, picture)  # the picture's size and window

@@ -433,7 +433,7 @@ def test_out_is_refused_for_a_character_with_what_to_do(character, posed, wave):
         mvcjax.deform_frames(character, wave, out=jnp.zeros_like(character.joined(posed)))
     with pytest.raises(ValueError, match="init must have the control mesh's shape"):
         character.deform(wave[0], init=character.control_mesh.vertices[:-1])
-    with pytest.raises(ValueError, match="init must be one of"):
+    with pytest.raises(TypeError, match="init must be a start"):
         character.solve(wave[0], init="bent")
 
 

@@ -97,7 +97,7 @@ def test_a_single_term_deforms_without_nan(horse, dtype, zeros):
     rig = mvcjax.Rig.build(horse, mvcjax.datasets.horse_handles(), dtype=dtype)
     rig = rig.with_weights(mvcjax.Weights.paper(**zeros))
     diagonal = float(np.linalg.norm(np.ptp(np.asarray(rig.shape_mesh.vertices), axis=0)))
-    rest = np.asarray(rig.deform(rig.handle_positions, init="rest"))
+    rest = np.asarray(rig.deform(rig.handle_positions, init=mvcjax.advanced.RestStart()))
     np.testing.assert_allclose(rest, np.asarray(rig.shape_mesh.vertices),
                                atol=(1e-4 if dtype == jnp.float32 else 1e-10) * diagonal)
     t = drag(rig, [[20.0, 5.0]] + [[0.0, 0.0]] * 4)

@@ -13,6 +13,8 @@ from mvcjax import datasets
 SIZE = (56, 64)
 # The fit's stages: a 3-pixel blur sees the moves (3 to 5 pixels), then sharper.
 BLURS = (3.0, 1.5, 0.0)
+ALPHA = mvcjax.advanced.AlphaChannel()  # silhouettes only
+RGBA = mvcjax.advanced.RGBAChannels()  # colour and alpha
 
 
 def small_rig(dtype):
@@ -55,7 +57,7 @@ def errors_in_pixels(found, truth, pixel):
 def target_picture(rig, renderer, channels):
     """The true pose drawn: the checkerboard in colour, or its silhouette's mask."""
     picture = np.asarray(renderer(rig.deform(true_targets(rig))))
-    return picture if channels == "rgba" else picture[..., 3]
+    return picture if channels == RGBA else picture[..., 3]
 
 
 def check_fit(rig, channels, **options):
@@ -95,14 +97,14 @@ def check_fit(rig, channels, **options):
 
 def test_textured_fit_recovers_the_pose_in_float32():  # in conftest.SLOW: a compilation
     rig = small_rig(jnp.float32)
-    renderer, _ = check_fit(rig, "rgba", warn=False)
+    renderer, _ = check_fit(rig, RGBA, warn=False)
     assert renderer.texture.dtype == jnp.float32
 
 
 @pytest.mark.float64
 def test_fit_recovers_the_pose_in_colour_and_from_the_silhouette_in_float64(rig64,
                                                                           monkeypatch):
-    renderer, _ = check_fit(rig64, "rgba")
+    renderer, _ = check_fit(rig64, RGBA)
     assert renderer.texture.dtype == jnp.float64
     # The silhouette's fit, another picture, start and tolerances run the same compiled
     # program: the residuals are not traced again.
@@ -114,13 +116,13 @@ def test_fit_recovers_the_pose_in_colour_and_from_the_silhouette_in_float64(rig6
         return residuals(*args)
 
     monkeypatch.setattr(mvcjax._fit, "_residuals", counted)
-    check_fit(rig64, "alpha")
+    check_fit(rig64, ALPHA)
     assert not traced
 
     # Tolerances no step can meet: each stage runs out of steps, and the fit says so.
-    mask = target_picture(rig64, renderer, "alpha")
+    mask = target_picture(rig64, renderer, ALPHA)
     with pytest.warns(RuntimeWarning, match="did not converge in 20 steps"):
-        stuck = mvcjax.fit_targets(rig64, renderer, mask, channels="alpha", blurs=BLURS,
+        stuck = mvcjax.fit_targets(rig64, renderer, mask, channels=ALPHA, blurs=BLURS,
                                    steps=20, rtol=0.0, atol=0.0)
     assert not traced
     assert not np.any(np.asarray(stuck.converged))
@@ -139,7 +141,7 @@ def test_silhouette_loss_gradient_matches_finite_differences(rig64):
     @jax.jit
     @jax.value_and_grad
     def loss(targets, picture, blur):
-        return mvcjax.image_loss(rig64, renderer, targets, picture, channels="alpha",
+        return mvcjax.image_loss(rig64, renderer, targets, picture, channels=ALPHA,
                                  blur=blur)
 
     for blur in (0.0, 2.0):
@@ -182,18 +184,18 @@ def test_picture_of_another_size(rig32, renderer32):
         mvcjax.fit_targets(rig32, renderer32, np.zeros((40, 64, 4)))
     with pytest.raises(ValueError, match=r"picture is 56 x 50 pixels"):
         mvcjax.image_loss(rig32, renderer32, rig32.handle_positions, np.zeros((56, 50)),
-                          channels="alpha")
+                          channels=ALPHA)
 
 
 def test_picture_with_wrong_channels(rig32, renderer32):
     targets = rig32.handle_positions
     with pytest.raises(ValueError, match="picture is RGB, which has no alpha.*mask"):
-        mvcjax.image_loss(rig32, renderer32, targets, np.zeros((56, 64, 3)), channels="alpha")
+        mvcjax.image_loss(rig32, renderer32, targets, np.zeros((56, 64, 3)), channels=ALPHA)
     with pytest.raises(ValueError, match="^picture: "):
         mvcjax.image_loss(rig32, renderer32, targets, np.zeros((56, 64, 5)))
     with pytest.raises(ValueError, match=r"picture \(a mask\) must hold values in \[0, 1\]"):
-        mvcjax.image_loss(rig32, renderer32, targets, np.full((56, 64), 2.0), channels="alpha")
-    with pytest.raises(ValueError, match="channels must be 'rgba'.*or 'alpha'"):
+        mvcjax.image_loss(rig32, renderer32, targets, np.full((56, 64), 2.0), channels=ALPHA)
+    with pytest.raises(TypeError, match=r"channels must be mvcjax.advanced.RGBAChannels\(\)"):
         mvcjax.image_loss(rig32, renderer32, targets, np.zeros((56, 64, 4)), channels="rgb")
 
 
@@ -209,7 +211,7 @@ def test_handles_out_of_the_window(rig32):
     part = mvcjax.Renderer.build(rig32, size=SIZE, window=half)
     with pytest.warns(UserWarning, match=r"handles \[0, 4\] lie outside.*fit_window"), \
             pytest.raises(ValueError, match="picture is 1 x 1"):
-        mvcjax.fit_targets(rig32, part, np.zeros((1, 1)), channels="alpha")
+        mvcjax.fit_targets(rig32, part, np.zeros((1, 1)), channels=ALPHA)
 
 
 def test_renderer_for_another_mesh(rig32):

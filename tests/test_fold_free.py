@@ -182,7 +182,7 @@ def test_the_default_reaches_the_minimum_of_a_raised_arm(degrees):
     best = min(float(arm_rig.deform(targets, s, return_info=True)[1].energy)
                for s in (mvcjax.GaussNewton(), mvcjax.LevenbergMarquardt()))
     default = float(arm_rig.deform(targets, return_info=True)[1].energy)
-    paper = float(arm_rig.deform(targets, mvcjax.FixedG(), init="rest",
+    paper = float(arm_rig.deform(targets, mvcjax.FixedG(), init=mvcjax.advanced.RestStart(),
                                  return_info=True)[1].energy)
     assert default <= 1.02 * best
     assert paper > 1.02 * best  # what the default is for: it stops short

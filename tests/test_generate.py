@@ -213,7 +213,7 @@ def test_bad_arguments_are_refused(sprite_folder, tmp_path):
                                process_count=2)
     with pytest.raises(TypeError, match="PoseLimits"):
         generate.write_dataset(sprite_folder, tmp_path / "out", limits={"offset": 0.1})
-    with pytest.raises(ValueError, match="fill must be 'checkerboard' or a colour"):
+    with pytest.raises(ValueError, match=r"fill must be mvcjax.advanced.Checkerboard\(\) or a"):
         generate.write_dataset(sprite_folder, tmp_path / "out", fill=(2.0, 0.0, 0.0))
     with pytest.raises(ValueError, match="plain file name"):
         generate.write_dataset({"../up": datasets.stick()}, tmp_path / "out")

@@ -62,7 +62,8 @@ def test_palette_files_with_and_without_transparency(tmp_path):
     palette = Image.fromarray(mask.astype(np.uint8), "P")
     palette.putpalette([255, 255, 255, 200, 30, 30])  # index 0 white, 1 red
     palette.save(tmp_path / "opaque.png")
-    np.testing.assert_array_equal(image_mask(tmp_path / "opaque.png", background="corner"),
+    np.testing.assert_array_equal(image_mask(tmp_path / "opaque.png",
+                                             background=mvcjax.advanced.CornerColour()),
                                   mask)
     palette.save(tmp_path / "transparent.png", transparency=0)
     picture = load_image(tmp_path / "transparent.png")
@@ -80,7 +81,7 @@ def test_backgrounds_in_every_spelling():
     mask = disc()
     picture = np.where(mask[..., None], [10, 120, 250], [0, 255, 0]).astype(np.uint8)
     for background in [(0, 255, 0), (0.0, 1.0, 0.0), np.array([0, 255, 0]), "lime", "#00ff00",
-                       "corner"]:
+                       mvcjax.advanced.CornerColour()]:
         np.testing.assert_array_equal(image_mask(picture, background=background), mask)
     # Anti-aliasing: a pixel between the colours counts as background within key_tolerance.
     picture[0, 0] = [0, 235, 0]
@@ -167,7 +168,7 @@ def test_bad_masks_from_pictures_are_explained():
         ((np.nan, 0.0, 0.0), ValueError, "outside 0..1"),
         ((255, 255, 255, 255), TypeError, "RGB colour, 3 numbers"),
         ((True, False, True), TypeError, "RGB colour"),
-        ("blanc", ValueError, "'blanc' is not a colour.*corner"),
+        ("blanc", ValueError, "'blanc' is not a colour.*CornerColour"),
         ("#ffffff80", ValueError, "has an alpha"),
         (object(), TypeError, "RGB colour"),
     ]:
@@ -189,9 +190,9 @@ def test_a_sample_picture_keys_out():
     from skimage import data
 
     coffee = data.coffee()
-    mask = image_mask(coffee, background="corner")
+    mask = image_mask(coffee, background=mvcjax.advanced.CornerColour())
     assert mask.shape == coffee.shape[:2] and 0 < mask.mean() < 1
-    shape = mvcjax.Shape.from_image(coffee, background="corner", component=0,
+    shape = mvcjax.Shape.from_image(coffee, background=mvcjax.advanced.CornerColour(), component=0,
                                     min_hole_area=50.0, tolerance=1.0)
     assert 0.5 * mask.size < shape.area < mask.size
 
@@ -245,7 +246,7 @@ def test_a_keyed_jpeg_renders_without_a_halo():
         return out[edge, :3].mean(axis=0)
 
     want = edge_colour(png)
-    cut = mvcjax.cut_out(jpeg, background="corner")
+    cut = mvcjax.cut_out(jpeg, background=mvcjax.advanced.CornerColour())
     assert np.abs(edge_colour(cut) - want).max() < 0.05
     assert np.abs(edge_colour(jpeg) - want).max() > 0.1  # the opaque JPEG: a light rim
     # Cut out, it makes the same shape as the PNG's alpha, to a pixel along the outline.
@@ -260,7 +261,8 @@ def test_an_opaque_picture_on_a_backdrop_warns_and_names_cut_out():
         mvcjax.Renderer.build(rig, jpeg)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        for picture in (png, mvcjax.cut_out(jpeg), mvcjax.advanced.checkerboard(128, 128)):
+        board = mvcjax.advanced.Checkerboard().picture(128, 128)
+        for picture in (png, mvcjax.cut_out(jpeg), board):
             mvcjax.Renderer.build(rig, picture)
 
 

@@ -333,7 +333,7 @@ def test_a_picture_made_for_the_axes_is_drawn_where_matplotlib_would_draw_it(hor
     from matplotlib.image import AxesImage
 
     _, ax = plt.subplots(figsize=(2.5, 2.5))
-    posing = started(mvcjax.interact(horse_rig32, ax=ax, fill="checkerboard"))
+    posing = started(mvcjax.interact(horse_rig32, ax=ax, fill=mvcjax.advanced.Checkerboard()))
     box = ax.bbox
     assert posing.renderer.shape == (round(box.height), round(box.width))  # the default size
     drag(posing, HEAD, [posing.targets[HEAD] + 12.0])

@@ -5,6 +5,7 @@ import re
 import types
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import mvcjax
@@ -40,3 +41,70 @@ def test_a_name_moved_to_advanced_says_where_it_is(name):
     with pytest.raises(AttributeError, match=rf"mvcjax.advanced.{name}"):
         getattr(mvcjax, name)
     assert getattr(mvcjax.advanced, name) is not None
+
+
+@pytest.fixture(scope="module")
+def square():
+    """A small rig, its renderer, its rest targets and an opaque picture."""
+    shape = mvcjax.Shape.from_polygon([(0, 0), (40, 0), (40, 40), (0, 40)])
+    rig = mvcjax.Rig.build(shape, [(5, 5), (35, 35)])
+    renderer = mvcjax.Renderer.build(rig, size=(24, 24))
+    picture = np.ones((24, 24, 3))
+    picture[6:18, 6:18] = 0.2
+    return rig, renderer, rig.handle_positions, picture
+
+
+# Each option that was once a string: the call with the old string, the object to write.
+OLD_STRINGS = {
+    "init-turned": (lambda r, d, t, p: r.deform(t, init="turned"), "TurnedStart"),
+    "init-rigid": (lambda r, d, t, p: r.solve(t, init="rigid"), "RigidStart"),
+    "init-rest": (lambda r, d, t, p: r.start(t, init="rest"), "RestStart"),
+    "window": (lambda r, d, t, p: d(r.deform(t), window="grow"), "GrownWindow"),
+    "fill": (lambda r, d, t, p: mvcjax.Renderer.build(r, fill="checkerboard"), "Checkerboard"),
+    "alpha-mesh": (lambda r, d, t, p: mvcjax.Renderer.build(r, alpha="mesh"), "MeshAlpha"),
+    "alpha-picture": (lambda r, d, t, p: mvcjax.Renderer.build(r, alpha="picture"),
+                      "PictureAlpha"),
+    "channels-rgba": (lambda r, d, t, p: mvcjax.image_loss(r, d, t, p, channels="rgba"),
+                      "RGBAChannels"),
+    "channels-alpha": (lambda r, d, t, p: mvcjax.image_loss(r, d, t, p, channels="alpha"),
+                       "AlphaChannel"),
+    "background-mask": (lambda r, d, t, p: mvcjax.image_mask(p, background="corner"),
+                        "CornerColour"),
+    "background-cut": (lambda r, d, t, p: mvcjax.cut_out(p, background="corner"),
+                       "CornerColour"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(OLD_STRINGS))
+def test_an_option_once_a_string_is_an_object_and_the_string_says_which(square, case):
+    call, name = OLD_STRINGS[case]
+    with pytest.raises(TypeError, match=rf"options are objects; write \w+=mvcjax\.advanced\."
+                                        rf"{name}\(\)"):
+        call(*square)
+    assert isinstance(getattr(mvcjax.advanced, name)(), mvcjax.advanced.__dict__[name])
+
+
+def test_the_option_objects_do_what_the_strings_did(square):
+    rig, renderer, targets, picture = square
+    moved = targets + np.array([[0.0, 0.0], [30.0, 12.0]], np.float32)
+    default = rig.deform(moved)
+    np.testing.assert_array_equal(rig.deform(moved, init=mvcjax.advanced.TurnedStart()),
+                                  default)
+    np.testing.assert_allclose(rig.start(moved, init=mvcjax.advanced.RestStart()),
+                               rig.control_mesh.vertices, atol=1e-5 * 40)
+    rigid = rig.start(moved, init=mvcjax.advanced.RigidStart())
+    assert not np.allclose(rigid, rig.control_mesh.vertices)
+    grown = renderer(default, window=mvcjax.advanced.GrownWindow())
+    assert grown.shape == (24, 24, 4)
+    # The grown window holds the whole pose: its drawn area is the pose's own, which the
+    # renderer's window (the rest shape's, with a margin) cuts.
+    assert float(grown[..., 3].sum()) > 0
+    mask = mvcjax.image_mask(picture, background=mvcjax.advanced.CornerColour())
+    assert mask.sum() == 144 and mask[6:18, 6:18].all()
+    tight = mvcjax.advanced.Checkerboard(cells=2).picture(4, 4)
+    np.testing.assert_array_equal(tight[:2, :2, :3], np.broadcast_to(tight[0, 0, :3], (2, 2, 3)))
+    assert not np.array_equal(tight[0, 0], tight[0, 2])
+    with pytest.raises(ValueError, match=r"GrownWindow\(margin=\)"):
+        mvcjax.advanced.GrownWindow(margin=-1.0)
+    with pytest.raises(ValueError, match=r"Checkerboard\(colours=\)"):
+        mvcjax.advanced.Checkerboard(colours=((1, 0, 0),))

@@ -11,6 +11,8 @@ from skimage import data, draw, morphology, transform
 import mvcjax
 from mvcjax import datasets
 
+GROWN = mvcjax.advanced.GrownWindow()  # the renderer's window, grown to hold the pose
+
 
 @pytest.fixture(scope="module")
 def picture():
@@ -220,10 +222,10 @@ def test_vmap_draws_frames_in_turn_as_the_plain_vmap_would_with_gradients(render
     fast = jax.jit(jax.vmap(renderer))(frames)
     plain = jax.jit(jax.vmap(lambda v: _draw(renderer, v, renderer.window)))(frames)
     np.testing.assert_allclose(premultiplied(fast), premultiplied(plain), atol=ROUNDING)
-    grown = jax.vmap(lambda v: renderer(v, window="grow"))(frames)
+    grown = jax.vmap(lambda v: renderer(v, window=GROWN))(frames)
     for k in range(3):
         np.testing.assert_allclose(premultiplied(grown[k]),
-                                   premultiplied(renderer(frames[k], window="grow")),
+                                   premultiplied(renderer(frames[k], window=GROWN)),
                                    atol=ROUNDING)
 
     def loss(v):
@@ -544,7 +546,7 @@ def test_a_grown_window_holds_a_pose_that_leaves_the_frame(renderer, rig):
     away = rig.shape_mesh.vertices + jnp.array([60.0, 0.0])
     with pytest.warns(UserWarning, match="1 pose drawn reaches outside"):
         cut = np.asarray(renderer(away))
-    grown = np.asarray(renderer(away, window="grow"))
+    grown = np.asarray(renderer(away, window=GROWN))
     # Cut off at the frame's right edge, the pose is whole in a grown window: nothing is
     # drawn along its border, and the drawn area is the rest picture's, scaled down.
     assert cut[:, -1, 3].max() > 0.5
@@ -552,7 +554,7 @@ def test_a_grown_window_holds_a_pose_that_leaves_the_frame(renderer, rig):
         assert edge[..., 3].max() == 0
     rest = np.asarray(renderer(rig.shape_mesh.vertices))[..., 3].sum()
     assert 0.2 * rest < grown[..., 3].sum() < rest  # the grown window's pixels are larger
-    with pytest.raises(ValueError, match="'grow'"):
+    with pytest.raises(TypeError, match=r"None or mvcjax.advanced.GrownWindow\(\), got 'fit'"):
         renderer(away, window="fit")
 
 

@@ -12,6 +12,8 @@ from mvcjax.geometry._topology import boundary_loops
 
 from conftest import directional_derivatives, drag, scipy_minimum
 
+RIGID = mvcjax.advanced.RigidStart()
+
 # A pose against the same pose computed again, on the horse (about 500 units across) in
 # float32: a few roundings.
 ROUNDING = dict(rtol=0, atol=1e-3)
@@ -192,9 +194,9 @@ def test_structured_solvers_run_on_the_sparse_factor(ring_full, ring_shape, name
     # From one start, so that they meet in one minimum.
     reference, energy = ring_full.solve(
         targets, mvcjax.FixedG(iterations=5000, rtol=1e-11, stop_early=True, anderson=5),
-        init="rigid", return_info=True)
+        init=RIGID, return_info=True)
     energy = energy.energy
-    vertices, info = jax.jit(lambda t: ring_full.solve(t, getattr(mvcjax, name)(), init="rigid",
+    vertices, info = jax.jit(lambda t: ring_full.solve(t, getattr(mvcjax, name)(), init=RIGID,
                                                        return_info=True))(targets)
     assert bool(info.converged), int(info.iterations)
     # The energy has several minima a hair apart (README, "several minima"): each solver

@@ -7,6 +7,8 @@ import mvcjax
 from mvcjax import datasets
 from mvcjax.geometry import _skinning
 
+RIGID = mvcjax.advanced.RigidStart()
+
 # Agreement with references to many digits, and the solvers' internals: in float64.
 pytestmark = pytest.mark.float64
 
@@ -57,14 +59,14 @@ def test_blended_skinning_is_smoothest_and_the_default(horse, skinned_rigs):
     measured = {}
     paper = mvcjax.FixedG()
     for name, rig in skinned_rigs.items():
-        out = rig.deform(rig.handle_positions + datasets.horse_drag(), paper, init="rigid")
+        out = rig.deform(rig.handle_positions + datasets.horse_drag(), paper, init=RIGID)
         measured[name] = mvcjax.advanced.smoothness(rig.shape_mesh.vertices, out,
                                                     rig.shape_mesh.faces)
     # The paper's per-triangle MVC jumps across control edges; the blend does not.
     assert measured["blended"] < measured["barycentric"] < measured["mvc"], measured
     # As smooth as the full solve on the shape mesh, at the paper's 15 iterations each.
     full = mvcjax.Rig.build(horse, datasets.horse_handles(), control=mvcjax.FullSolve())
-    out = full.deform(full.handle_positions + datasets.horse_drag(), paper, init="rigid")
+    out = full.deform(full.handle_positions + datasets.horse_drag(), paper, init=RIGID)
     assert measured["blended"] < 1.1 * mvcjax.advanced.smoothness(full.shape_mesh.vertices, out,
                                                           full.shape_mesh.faces), measured
     default = mvcjax.Rig.build(horse, datasets.horse_handles())

@@ -16,6 +16,8 @@ from mvcjax import datasets
 
 from conftest import directional_derivatives, drag, scipy_minimum
 
+RIGID = mvcjax.advanced.RigidStart()
+
 # Agreement with references to many digits, and the solvers' internals: in float64.
 pytestmark = pytest.mark.float64
 
@@ -49,7 +51,7 @@ def solve(horse_rig):
         for name, solver in TIGHT.items()
     }
 
-    def run(name, targets, init="rigid"):
+    def run(name, targets, init=RIGID):
         key = (name, np.asarray(targets).tobytes(),
                init if isinstance(init, str) else np.asarray(init).tobytes())
         if key not in cache:
@@ -117,7 +119,7 @@ def test_several_minima_are_each_stationary(horse_rig, solve):
     assert energies["fixed_g"] == pytest.approx(energies["anderson"], rel=1e-9)
     plain = mvcjax.LevenbergMarquardt(
         max_steps=1000, linear_solver=mvcjax.advanced.StructuredCG(steps=8, deflate=False))
-    vertices, info = jax.jit(lambda t: horse_rig.solve(t, plain, init="rigid",
+    vertices, info = jax.jit(lambda t: horse_rig.solve(t, plain, init=RIGID,
                                                        return_info=True))(targets)
     assert bool(info.converged)
     assert gradient_norm(horse_rig, vertices, targets) < 1e-5
@@ -167,8 +169,8 @@ def test_paper_start_and_rigid_start(horse_rig):
     rot = jnp.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
     targets = horse_rig.handle_positions @ rot.T
     expected = horse_rig.control_mesh.vertices @ rot.T
-    rigid = horse_rig.solve(targets, init="rigid")
-    paper = horse_rig.solve(targets, init="rest")
+    rigid = horse_rig.solve(targets, init=RIGID)
+    paper = horse_rig.solve(targets, init=mvcjax.advanced.RestStart())
     scale = float(horse_rig.frame.scale)
     assert float(jnp.abs(rigid - expected).max()) < 1e-9 * scale
     assert float(jnp.abs(paper - expected).max()) > 1e-2 * scale
@@ -179,7 +181,7 @@ def test_solver_errors(horse_rig):
         mvcjax.FixedG(iterations=0)
     with pytest.raises(TypeError, match="mvcjax solver"):
         horse_rig.solve(horse_rig.handle_positions, solver="gauss-newton")
-    with pytest.raises(ValueError, match="init must be"):
+    with pytest.raises(TypeError, match="init must be a start"):
         horse_rig.solve(horse_rig.handle_positions, init="zero")
 
 

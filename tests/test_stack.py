@@ -142,7 +142,7 @@ def test_a_stack_of_renderers_draws_each_picture_as_alone(rigs64):
     for i, rig in enumerate(rigs64):
         n = rig.shape_mesh.vertices.shape[0]
         window = mvcjax.fit_window(np.asarray(poses[i, :, :n]).reshape(-1, 2), (40, 48))
-        picture = mvcjax.advanced.checkerboard(20 + 7 * i, 30 - 4 * i, cells=4)
+        picture = mvcjax.advanced.Checkerboard(cells=4).picture(20 + 7 * i, 30 - 4 * i)
         renderers.append(mvcjax.Renderer.build(
             rig, picture, size=(40, 48), window=window,
             image_window=np.concatenate([rig.shape_mesh.vertices.min(0) - 1,

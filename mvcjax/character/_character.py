@@ -36,14 +36,17 @@ from ..core import (
     whole_number,
 )
 from ..geometry import Shape, Skinning, image_mask, to_uint8
-from ..rendering import Renderer, key_layout
+from ..rendering import Checkerboard, MeshAlpha, Renderer, key_layout
 from ..rig import (
     AbstractRig,
+    AbstractStart,
     Bone,
     ControlMesh,
     Handles,
+    Init,
     Rig,
     ShapeMesh,
+    TurnedStart,
     checked_start,
     make_handles,
     parse_handles,
@@ -363,19 +366,19 @@ class Character(AbstractRig):
     def _check_targets(self, targets) -> Float[Array, "t 2"]:
         return check_targets(targets, self.handles.count, self.handles.rest.dtype)
 
-    def _check_init(self, init: Any) -> tuple:
-        """`init` for every part: a start's name, or the part's rows of `(c, 2)` control
+    def _check_init(self, init: Init) -> tuple:
+        """`init` for every part: a start, or the part's rows of `(c, 2)` control
         vertices of the joined control mesh."""
         init = checked_start(init, self.control_mesh.vertices.shape)
-        if isinstance(init, str):
+        if isinstance(init, AbstractStart):
             return (init,) * len(self.parts)
         ends = np.cumsum([part.control_mesh.vertices.shape[0] for part in self.parts])
         return tuple(init[end - part.control_mesh.vertices.shape[0]:end]
                      for part, end in zip(self.parts, ends))
 
-    def start(self, targets: Any, init: Any = "turned") -> Float[Array, "c 2"]:
+    def start(self, targets: Any, init: Init = TurnedStart()) -> Float[Array, "c 2"]:
         """Starting vertices of the joined control mesh (`control_mesh`) for `(t, 2)`
-        targets: every part's start (`Rig.start`, a start's name), parents first, an
+        targets: every part's start (`Rig.start`, a start), parents first, an
         attached part's attachment targets carried by its parent's start."""
         targets = self._check_targets(targets)
         starts = [None] * len(self.parts)
@@ -385,14 +388,14 @@ class Character(AbstractRig):
             starts[i] = self.parts[i].start(own, init)
         return self.joined(starts)
 
-    def solve(self, targets: Any, solver: Any = DEFAULT_SOLVER, *, init: Any = "turned",
+    def solve(self, targets: Any, solver: Any = DEFAULT_SOLVER, *, init: Init = TurnedStart(),
               return_info: bool = False):
         """Every part's control vertices for these targets, parents first.
 
         Args:
             targets: `(t, 2)` where each handle goes (a row per point, two per bone).
             solver: the solver of every part (default: `Rig.solve`'s).
-            init: every part's start, a start's name (see `Rig.start`), or `(c, 2)`
+            init: every part's start, a start (see `Rig.start`), or `(c, 2)`
                 vertices of the joined control mesh (`control_mesh`): a pose before,
                 `character.joined(control)`.
             return_info: also return a `SolveInfo` per part.
@@ -410,7 +413,7 @@ class Character(AbstractRig):
         """Every part's shape-mesh vertices carried by its control vertices."""
         return tuple(part.skin(c) for part, c in zip(self.parts, control))
 
-    def deform(self, targets: Any, solver: Any = DEFAULT_SOLVER, *, init: Any = "turned",
+    def deform(self, targets: Any, solver: Any = DEFAULT_SOLVER, *, init: Init = TurnedStart(),
                return_info: bool = False):
         """Solve, then skin: a tuple of every part's deformed shape-mesh vertices
         `(n_i, 2)` in the layers' order (and a `SolveInfo` per part); the arguments are
@@ -558,7 +561,7 @@ class CharacterRenderer(JittableModule):
             raise TypeError(f"CharacterRenderer.build got unexpected options {sorted(unknown)}; "
                             "it takes antialias, alpha and dtype besides its arguments.")
         settings = dict(window=window, size=size, background=background, image_window=None,
-                        fill="checkerboard", depth=None, antialias=True, alpha="mesh",
+                        fill=Checkerboard(), depth=None, antialias=True, alpha=MeshAlpha(),
                         budget=None, dtype=None) | options
         parts = [Renderer._prepared(rig, layer.picture, **settings)
                  for rig, layer in zip(character.parts, layers)]
@@ -616,8 +619,8 @@ class CharacterRenderer(JittableModule):
             vertices: a tuple of every part's `(n_i, 2)` vertices (`character.deform`).
             order: `(p,)` the draw order of this picture, part indices bottom first
                 (numbers: no recompilation); default the layers'.
-            window: another rectangle `(xmin, ymin, xmax, ymax)` to draw, or `"grow"`
-                (as for `Renderer`).
+            window: another rectangle `(xmin, ymin, xmax, ymax)` to draw, or
+                `mvcjax.advanced.GrownWindow()` (as for `Renderer`).
 
         Returns:
             `(rows, cols, 4)` straight RGBA in [0, 1].

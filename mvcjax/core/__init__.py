@@ -18,6 +18,7 @@ from ._checks import (
     is_whole_number as is_whole_number,
     kind_of as kind_of,
     refuse_removed as refuse_removed,
+    refuse_string as refuse_string,
     refusing_removed as refusing_removed,
     whole_number as whole_number,
 )

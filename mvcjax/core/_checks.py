@@ -102,6 +102,14 @@ def refusing_removed(**removed: str):
     return wrap
 
 
+def refuse_string(name: str, value, objects: dict[str, str]) -> None:
+    """A TypeError if `value` is a string that named an option before options were
+    objects: `objects` maps each such string to the object to write now."""
+    if isinstance(value, str) and value in objects:
+        raise TypeError(f"{name}={value!r}: options are objects; write "
+                        f"{name}={objects[value]}.")
+
+
 def as_devices(devices) -> list | None:
     """`devices` as a non-empty list of JAX devices, or None for the default device."""
     if devices is None:

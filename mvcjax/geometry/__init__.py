@@ -14,7 +14,12 @@ from ._folds import (
     inverted_count as inverted_count,
     signed_areas as signed_areas,
 )
-from ._image import cut_out as cut_out, image_mask as image_mask, load_image as load_image
+from ._image import (
+    CornerColour as CornerColour,
+    cut_out as cut_out,
+    image_mask as image_mask,
+    load_image as load_image,
+)
 from ._local_frame import (
     Frame as Frame,
     bounding_frame as bounding_frame,

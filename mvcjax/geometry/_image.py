@@ -7,10 +7,11 @@ import os
 import sys
 from typing import Any
 
+import equinox as eqx
 import numpy as np
 from jaxtyping import Bool, Float
 
-from ..core import is_real_number, kind_of, whole_number
+from ..core import is_real_number, kind_of, refuse_string, whole_number
 
 _CHANNELS = "(rows, cols) grey, (rows, cols, 3) RGB or (rows, cols, 4) RGBA"
 
@@ -151,20 +152,31 @@ def _number(value, name: str, below: str) -> float:
     return float(value)
 
 
+class CornerColour(eqx.Module):
+    """The background colour of a picture is its top-left pixel's (`background=` of
+    `image_mask`, `cut_out` and `Shape.from_image`): for a sprite on a plain backdrop
+    whose colour is not known."""
+
+    def __call__(self, picture: Float[np.ndarray, "rows cols 4"]) -> Float[np.ndarray, 3]:
+        """The RGB colour of `picture`'s top-left pixel."""
+        return picture[0, 0, :3]
+
+
 def _background_colour(background, picture: np.ndarray) -> np.ndarray:
     """The background's RGB in 0..1 (float32, like the picture)."""
+    if isinstance(background, CornerColour):
+        return background(picture)
+    refuse_string("background", background, {"corner": "mvcjax.advanced.CornerColour()"})
     if isinstance(background, str):
-        if background == "corner":
-            return picture[0, 0, :3]
         from PIL import ImageColor
 
         try:
             rgb = ImageColor.getrgb(background)
         except ValueError:
-            raise ValueError(f'background={background!r} is not a colour: give "corner" (the '
-                             'colour of the top-left pixel), a colour name or "#rrggbb", or '
-                             "RGB numbers, (255, 255, 255) or (1.0, 1.0, 1.0) for "
-                             "white.") from None
+            raise ValueError(f"background={background!r} is not a colour: give a colour "
+                             'name or "#rrggbb", RGB numbers, (255, 255, 255) or (1.0, 1.0, '
+                             "1.0) for white, or mvcjax.advanced.CornerColour() (the colour "
+                             "of the top-left pixel).") from None
         if len(rgb) != 3:
             raise ValueError(f"background={background!r} has an alpha; give its colour only "
                              "(alpha is judged by alpha_threshold).")
@@ -175,7 +187,8 @@ def _background_colour(background, picture: np.ndarray) -> np.ndarray:
         colour = np.asarray(None)
     if colour.dtype.kind not in "iuf" or colour.shape != (3,):
         raise TypeError(f"background must be an RGB colour, 3 numbers (0..255 integers or "
-                        f'0..1 floats), "corner" or a colour name, got {background!r}.')
+                        f"0..1 floats), a colour name or mvcjax.advanced.CornerColour(), got "
+                        f"{background!r}.")
     if colour.dtype.kind in "iu":
         if colour.min() < 0 or colour.max() > 255:
             raise ValueError(f"background={background!r} is outside 0..255; integers are "
@@ -212,8 +225,8 @@ def image_mask(
             RGB or RGBA array).
         alpha_threshold: alpha above which a pixel is foreground, from 0 to below 1.
         background: the colour to key out: RGB as 0..255 integers or 0..1 floats,
-            a colour name or `"#rrggbb"`, or `"corner"` for the colour of the
-            top-left pixel. Required for an opaque picture.
+            a colour name or `"#rrggbb"`, or `mvcjax.advanced.CornerColour()` for the
+            colour of the top-left pixel. Required for an opaque picture.
         key_tolerance: largest difference, in 0..1 units and any of red, green or
             blue, at which a pixel's colour still counts as the background, from 0 to
             below 1. Anti-aliased edges lie between the two colours: the default, 0.1,
@@ -237,8 +250,8 @@ def image_mask(
         raise ValueError(
             "The picture is opaque (RGB, or alpha 1 everywhere), so alpha cannot tell the "
             "shape from its background: pass background= its colour (e.g. background=(255, "
-            '255, 255) for white, or background="corner" for the colour of the top-left '
-            "pixel), or give a picture with alpha."
+            "255, 255) for white, or background=mvcjax.advanced.CornerColour() for the "
+            "colour of the top-left pixel), or give a picture with alpha."
         )
     mask = alpha > threshold
     if not mask.any():
@@ -267,7 +280,7 @@ def image_mask(
 def cut_out(
     image: Any,
     *,
-    background: Any = "corner",
+    background: Any = CornerColour(),
     key_tolerance: Any = 0.1,
     edge: Any = 2,
 ) -> Float[np.ndarray, "rows cols 4"]:
@@ -285,7 +298,7 @@ def cut_out(
     Args:
         image: a picture, anything `load_image` takes.
         background: the colour to key out, as `image_mask` takes it (default
-            `"corner"`: the top-left pixel's).
+            `CornerColour()`: the top-left pixel's).
         key_tolerance: as `image_mask`'s.
         edge: the width in pixels of the band along the outline whose colours are
             mixed with the background (JPEG blurs over about two).

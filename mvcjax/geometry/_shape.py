@@ -376,8 +376,9 @@ class Shape:
             alpha_threshold: pictures only: alpha above which a pixel is foreground, from
                 0 to below 1.
             background: pictures only: the colour to key out, RGB as 0..255 integers or
-                0..1 floats, a colour name or `"#rrggbb"`, or `"corner"` for the colour of
-                the top-left pixel. Required for an opaque picture (RGB, or alpha 1
+                0..1 floats, a colour name or `"#rrggbb"`, or
+                `mvcjax.advanced.CornerColour()` for the colour of the top-left pixel.
+                Required for an opaque picture (RGB, or alpha 1
                 everywhere).
             key_tolerance: pictures only: largest difference, in 0..1 units and any of
                 red, green or blue, at which a colour still counts as the background.

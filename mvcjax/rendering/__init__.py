@@ -1,12 +1,18 @@
 """Pictures of posed meshes: windows, raster, shading, draw order, the `Renderer`."""
 
+from ._options import (
+    AbstractAlpha as AbstractAlpha,
+    Checkerboard as Checkerboard,
+    GrownWindow as GrownWindow,
+    MeshAlpha as MeshAlpha,
+    PictureAlpha as PictureAlpha,
+)
 from ._render import (
     Renderer as Renderer,
     as_picture as as_picture,
     check_drawn_mesh as check_drawn_mesh,
     check_size as check_size,
     check_window as check_window,
-    checkerboard as checkerboard,
     core_depth as core_depth,
     depth_from_handles as depth_from_handles,
     fill_texture as fill_texture,

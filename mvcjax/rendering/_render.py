@@ -49,12 +49,14 @@ from ..core import (
     one_after_another,
     programs_field,
     progress_bar,
+    refuse_string,
     to_device,
     whole_number,
     with_batching_rule,
 )
 from ..geometry import boundary_edges, edges, load_image, on_boundary, to_uint8
 from ..rig import AbstractRig, ShapeMesh, pad_rows, stacked, too_large
+from ._options import AbstractAlpha, Checkerboard, GrownWindow, MeshAlpha
 
 # A candidate pixel is inside a triangle when its centre is no further than this outside
 # an edge (in pixels): shared edges then never leave a crack between their triangles.
@@ -96,22 +98,6 @@ def _warn_if_on_a_backdrop(picture: np.ndarray, texture_points: np.ndarray) -> N
             "a rim of that backdrop. Cut the subject out first: "
             "Renderer.build(..., mvcjax.cut_out(image)), which makes the backdrop "
             "transparent.", stacklevel=4)
-
-
-def checkerboard(
-    rows: int = 256,
-    cols: int = 256,
-    cells: int = 8,
-    colours: Any = ((0.95, 0.62, 0.22), (0.36, 0.2, 0.09)),
-) -> Float[np.ndarray, "rows cols 4"]:
-    """An opaque `(rows, cols, 4)` checkerboard of `cells` squares along the longer side:
-    a texture that shows every stretch and shear of a deformation."""
-    side = max(rows, cols) / cells
-    r, c = np.mgrid[:rows, :cols]
-    odd = ((r // side + c // side) % 2).astype(bool)
-    colours = np.asarray(colours, np.float32)
-    rgb = np.where(odd[..., None], colours[1], colours[0])
-    return np.concatenate([rgb, np.ones((rows, cols, 1), np.float32)], axis=-1)
 
 
 def check_window(window, name: str) -> np.ndarray:
@@ -261,7 +247,7 @@ class Renderer(JittableModule):
         budget: the most pixel tiles the triangles of one picture may cover (static).
         tile: the side of those tiles, in pixels (static).
         antialias: whether boundary edges are antialiased (static).
-        see_through: whether the texture is partly transparent (`alpha="picture"`), so
+        see_through: whether the texture is partly transparent (`alpha=PictureAlpha()`), so
             that the layer beneath shows through it (static).
         programs: what the renderer compiled for itself; it goes with the renderer.
     """
@@ -290,11 +276,11 @@ class Renderer(JittableModule):
         size: Any = None,
         window: Any = None,
         image_window: Any = None,
-        fill: Any = "checkerboard",
+        fill: Any = Checkerboard(),
         background: Any = (0.0, 0.0, 0.0, 0.0),
         depth: Any = None,
         antialias: bool = True,
-        alpha: str = "mesh",
+        alpha: AbstractAlpha | str = MeshAlpha(),  # a string: refused, naming the object
         budget: Any = None,
         dtype: Any = None,
     ) -> Any:  # a Renderer (a CharacterRenderer for a Character)
@@ -319,8 +305,8 @@ class Renderer(JittableModule):
                 `(-0.5, -0.5, cols - 0.5, rows - 0.5)`: pixel `(row, col)` of the picture
                 is centred at `(col, rows - 1 - row)`, the convention of
                 `Shape.from_image`, so that a shape made from a picture lies on it.
-            fill: without a picture, `"checkerboard"` (shows stretch and shear) or a
-                colour `(r, g, b)` / `(r, g, b, a)` in [0, 1].
+            fill: without a picture, `Checkerboard()` (in `mvcjax.advanced`: shows
+                stretch and shear) or a colour `(r, g, b)` / `(r, g, b, a)` in [0, 1].
             background: straight RGBA `(r, g, b, a)` in [0, 1] where nothing is drawn;
                 transparent by default.
             depth: draw order where parts overlap: `(n,)` a depth per rest vertex, larger
@@ -332,12 +318,13 @@ class Renderer(JittableModule):
                 pose, so that an animation's overlaps never flicker.
             antialias: smooth (and differentiable) boundary edges; False draws hard edges
                 for less work (no coverage to compute along the boundary).
-            alpha: where the drawn shape's edge comes from. `"mesh"` (default): the mesh
-                is the silhouette (as `Shape.from_image` traced it), antialiased by its
-                coverage of each pixel; the picture is drawn opaque, its colours carried
-                past its own soft edge so that no dark rim comes in. `"picture"`: the
-                picture's alpha multiplies the coverage, for pictures that are partly
-                transparent inside.
+            alpha: where the drawn shape's edge comes from (in `mvcjax.advanced`).
+                `MeshAlpha()` (default): the mesh is the silhouette (as
+                `Shape.from_image` traced it), antialiased by its coverage of each pixel;
+                the picture is drawn opaque, its colours carried past its own soft edge
+                so that no dark rim comes in. `PictureAlpha()`: the picture's alpha
+                multiplies the coverage, for pictures that are partly transparent
+                inside.
             budget: the most square pixel tiles (the tile's side is picked for the mesh)
                 the triangles' bounding boxes may cover in one picture: the work grows
                 with them. Default: sixteen times the rest mesh's in this window plus four
@@ -393,12 +380,15 @@ class Renderer(JittableModule):
             _warn_if_on_a_backdrop(picture, texture_points)
         order, level = draw_levels(depth, vertices, faces)
         faces = faces[order]
-        if alpha not in ("mesh", "picture"):
-            raise ValueError(f"alpha must be 'mesh' or 'picture', got {alpha!r}.")
+        refuse_string("alpha", alpha, {"mesh": "mvcjax.advanced.MeshAlpha()",
+                                       "picture": "mvcjax.advanced.PictureAlpha()"})
+        if not isinstance(alpha, AbstractAlpha):
+            raise TypeError(f"alpha must be mvcjax.advanced.MeshAlpha() or "
+                            f"mvcjax.advanced.PictureAlpha(), got {alpha!r}.")
         return dict(vertices=vertices, faces=faces, texture_points=texture_points,
                     texture=_texture(picture, alpha), window=window, size=(rows, cols),
                     level=to_device(level, np.int32), budget=budget, background=background,
-                    antialias=antialias, see_through=alpha == "picture", dtype=dtype)
+                    antialias=antialias, see_through=alpha.see_through, dtype=dtype)
 
     @classmethod
     def _from_arrays(cls, vertices, faces, texture_points, texture, window,
@@ -472,9 +462,9 @@ class Renderer(JittableModule):
         Args:
             vertices: `(n, 2)` vertex positions (deformed), in the plane's coordinates.
             window: `(4,)` another rectangle `(xmin, ymin, xmax, ymax)` to draw (numbers:
-                no recompilation); default the renderer's. `"grow"`: the renderer's,
-                grown (keeping square pixels) to hold the pose with a 5% margin, for a
-                pose that leaves the picture's frame.
+                no recompilation); default the renderer's. `GrownWindow()` (in
+                `mvcjax.advanced`): the renderer's, grown (keeping square pixels) to hold
+                the pose with a 5% margin, for a pose that leaves the picture's frame.
 
         Returns:
             `(rows, cols, 4)` straight (not premultiplied) RGBA in [0, 1].
@@ -490,11 +480,12 @@ class Renderer(JittableModule):
                              f"the renderer was built for, got shape {shape}; for many frames "
                              "use renderer.frames(frames) (or jax.vmap(renderer)).")
         vertices = jnp.asarray(vertices, self.texture.dtype)
+        refuse_string("window", window, {"grow": "mvcjax.advanced.GrownWindow()"})
         if isinstance(window, str):
-            if window != "grow":
-                raise ValueError(f"window must be (xmin, ymin, xmax, ymax), None or 'grow', "
-                                 f"got {window!r}.")
-            window = _grown(self.window, vertices, self.shape)
+            raise TypeError(f"window must be (xmin, ymin, xmax, ymax), None or "
+                            f"mvcjax.advanced.GrownWindow(), got {window!r}.")
+        if isinstance(window, GrownWindow):
+            window = window(self.window, vertices, self.shape)
         if window is None:
             window = self.window
             _warn_when_cut_off(vertices, window)
@@ -596,23 +587,9 @@ class Renderer(JittableModule):
                 f"outside the renderer's window ({xmin:g}, {ymin:g}, {xmax:g}, {ymax:g}) and "
                 "are cut off there. To keep them whole, build the renderer with "
                 "window=mvcjax.fit_window(frames, size) (one window for the whole "
-                "animation), or draw single poses with renderer(vertices, window='grow').",
+                "animation), or draw single poses with renderer(vertices, "
+                "window=mvcjax.advanced.GrownWindow()).",
                 stacklevel=3)
-
-
-def _grown(window, vertices, shape: tuple[int, int]):
-    """`window` grown to hold `vertices` with a 5% margin, then to the picture's aspect
-    ratio about its centre (pure JAX: a pose's numbers, no recompilation)."""
-    points = jax.lax.stop_gradient(vertices)
-    lo, hi = points.min(axis=0), points.max(axis=0)
-    margin = 0.05 * (hi - lo)
-    lo = jnp.minimum(window[:2], lo - margin)
-    hi = jnp.maximum(window[2:], hi + margin)
-    rows, cols = shape
-    centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
-    pixel = jnp.maximum(half[0] / cols, half[1] / rows)
-    half = pixel * jnp.array([cols, rows], window.dtype)
-    return jnp.concatenate([centre - half, centre + half])
 
 
 def _draw_each(renderer: Renderer, vertices, window):
@@ -675,9 +652,9 @@ def _cut_off(outside, window) -> None:
             f"{count} pose{'' if one else 's'} drawn reach{'es' if one else ''} outside the "
             f"renderer's window ({xmin:g}, {ymin:g}, {xmax:g}, {ymax:g}) and "
             f"{'is' if one else 'are'} cut off there. To keep {'it' if one else 'them'} "
-            "whole, draw with renderer(vertices, window='grow'), or build the renderer with "
-            "window=mvcjax.fit_window(frames, size); a window passed explicitly draws "
-            "exactly it, without this warning.", stacklevel=2)
+            "whole, draw with renderer(vertices, window=mvcjax.advanced.GrownWindow()), "
+            "or build the renderer with window=mvcjax.fit_window(frames, size); a window "
+            "passed explicitly draws exactly it, without this warning.", stacklevel=2)
 
 
 def _warn_when_cut_off(vertices, window) -> None:
@@ -712,11 +689,11 @@ def _mesh_of(mesh) -> tuple[np.ndarray, np.ndarray]:
                     f"{type(mesh).__name__}.")
 
 
-def _texture(picture: np.ndarray, alpha: str) -> np.ndarray:
+def _texture(picture: np.ndarray, alpha: AbstractAlpha) -> np.ndarray:
     """The premultiplied texture: the picture's own alpha, or opaque with the colours of
     its visible pixels carried to the transparent ones nearest to them."""
     texture = picture.astype(np.float64)
-    if alpha == "picture":
+    if alpha.see_through:
         texture[..., :3] *= texture[..., 3:]
         return texture
     seen = texture[..., 3] > 1 / 255
@@ -763,13 +740,14 @@ def _check_cover(picture: np.ndarray, texture_points: np.ndarray, vertices: np.n
 def fill_texture(fill, vertices):
     """A texture and its window for a shape drawn without a picture."""
     window = np.array(fit_window(vertices, margin=0.0))
-    if isinstance(fill, str) and fill == "checkerboard":
-        return checkerboard(), window
+    if isinstance(fill, Checkerboard):
+        return fill.picture(), window
+    refuse_string("fill", fill, {"checkerboard": "mvcjax.advanced.Checkerboard()"})
     colour = np.asarray(fill, np.float32) if not isinstance(fill, str) else None
     if colour is None or colour.shape not in ((3,), (4,)) or not np.all(
             (colour >= 0) & (colour <= 1)):
-        raise ValueError(f"fill must be 'checkerboard' or a colour (r, g, b) or (r, g, b, a) "
-                         f"in [0, 1], got {fill!r}.")
+        raise ValueError(f"fill must be mvcjax.advanced.Checkerboard() or a colour (r, g, b) "
+                         f"or (r, g, b, a) in [0, 1], got {fill!r}.")
     return np.append(colour, 1.0)[:4].reshape(1, 1, 4).astype(np.float32), window
 
 

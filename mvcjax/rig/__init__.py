@@ -27,4 +27,11 @@ from ._rig import (
     solve_in_frame as solve_in_frame,
 )
 from ._stack import pad_rows as pad_rows, stacked as stacked, too_large as too_large
-from ._start import checked_start as checked_start
+from ._start import (
+    AbstractStart as AbstractStart,
+    Init as Init,
+    RestStart as RestStart,
+    RigidStart as RigidStart,
+    TurnedStart as TurnedStart,
+    checked_start as checked_start,
+)

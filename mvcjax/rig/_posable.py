@@ -13,6 +13,7 @@ from jaxtyping import Array, Float, Int
 from ..core import JittableModule
 from ..solvers import DEFAULT_SOLVER
 from ._handles import Handles
+from ._start import Init, TurnedStart
 
 
 class ShapeMesh(eqx.Module):
@@ -72,13 +73,13 @@ class AbstractRig(JittableModule):
         """The targets at rest: targets equal to these give back the rest pose."""
 
     @abc.abstractmethod
-    def start(self, targets: Any, init: Any = "turned") -> Float[Array, "c 2"]:
+    def start(self, targets: Any, init: Init = TurnedStart()) -> Float[Array, "c 2"]:
         """Starting vertices of the joined control mesh for `(h, 2)` targets."""
 
     @abc.abstractmethod
-    def solve(self, targets: Any, solver: Any = DEFAULT_SOLVER, *, init: Any = "turned",
+    def solve(self, targets: Any, solver: Any = DEFAULT_SOLVER, *, init: Init = TurnedStart(),
               return_info: bool = False) -> Any:
-        """The control vertices for `(h, 2)` targets, from `init` (a start's name, or
+        """The control vertices for `(h, 2)` targets, from `init` (a start, or
         `(c, 2)` vertices of the joined control mesh)."""
 
     @abc.abstractmethod
@@ -86,7 +87,7 @@ class AbstractRig(JittableModule):
         """The shape-mesh vertices carried by `solve`'s control vertices."""
 
     @abc.abstractmethod
-    def deform(self, targets: Any, solver: Any = DEFAULT_SOLVER, *, init: Any = "turned",
+    def deform(self, targets: Any, solver: Any = DEFAULT_SOLVER, *, init: Init = TurnedStart(),
                return_info: bool = False) -> Any:
         """Solve, then skin."""
 

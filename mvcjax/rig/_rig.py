@@ -60,7 +60,7 @@ from ._handles import Handles, check_handles, make_handles, pin
 from ._ladder import SizeLadder, cut_factor, keep_twin, padded_twin, twin_parts
 from ._posable import AbstractRig, ControlMesh, ShapeMesh
 from ._stack import pad_rows, stack_rigs
-from ._start import checked_start, start_vertices, turn_weights
+from ._start import AbstractStart, Init, TurnedStart, checked_start, turn_weights
 
 
 class _BuildOptions(NamedTuple):
@@ -556,26 +556,28 @@ class Rig(AbstractRig):
         placed and pins taken out)."""
         return np.asarray(self.handles.active)
 
-    def _check_init(self, init: Any) -> Any:
+    def _check_init(self, init: Init) -> AbstractStart | Float[ArrayLike, "c 2"]:
         return checked_start(init, self.energy.rest.shape)
 
-    def _local_start(self, targets: Float[Array, "t 2"], init: Any) -> Float[Array, "c 2"]:
+    def _local_start(self, targets: Float[Array, "t 2"],
+                     init: AbstractStart | Float[ArrayLike, "c 2"]) -> Float[Array, "c 2"]:
         """The start for targets in the rig's frame (a row per target)."""
-        if isinstance(init, str):
-            return start_vertices(self.energy, self.factor, self.handles, self.turns, targets,
-                                  init)
+        if isinstance(init, AbstractStart):
+            return init(self.energy, self.factor, self.handles, self.turns, targets)
         return self.frame.to_local(jnp.asarray(init, self.energy.rest.dtype))
 
-    def start(self, targets: Any, init: Any = "turned") -> Float[Array, "c 2"]:
+    def start(self, targets: Any, init: Init = TurnedStart()) -> Float[Array, "c 2"]:
         """Starting control vertices for `(h, 2)` targets.
 
         Args:
             targets: `(h, 2)` where each handle should go.
-            init: `"turned"` (default: every bone's turn, and the handles' rigid turn,
-                spread over the control mesh, then one global step; a limb turned far
-                starts turned, not squeezed), `"rigid"` (the rest mesh moved rigidly to
-                fit the targets), `"rest"` (the paper's start), or an explicit `(c, 2)`
-                array (a previous frame's control vertices, for instance).
+            init: a start: `mvcjax.advanced.TurnedStart()` (default: every bone's turn,
+                and the handles' rigid turn, spread over the control mesh, then one
+                global step; a limb turned far starts turned, not squeezed),
+                `mvcjax.advanced.RigidStart()` (the rest mesh moved rigidly to fit the
+                targets), `mvcjax.advanced.RestStart()` (the paper's start), or an
+                explicit `(c, 2)` array (a previous frame's control vertices, for
+                instance).
         """
         return self.frame.to_world(self._local_start(
             self.frame.to_local(self._check_targets(targets)), self._check_init(init)))
@@ -589,7 +591,7 @@ class Rig(AbstractRig):
         targets: Any,
         solver: Any = DEFAULT_SOLVER,
         *,
-        init: Any = "turned",
+        init: Init = TurnedStart(),
         return_info: bool = False,
     ):
         """Control vertices minimising the energy (6) for these handle targets.
@@ -599,9 +601,10 @@ class Rig(AbstractRig):
             solver: a solver. The default, `FixedG(iterations=30)` from the turned
                 start, comes near the minimum of the default energy on poses that turn
                 limbs far; the paper's method is `FixedG()` (15 iterations) with
-                `init="rest"` on `Weights.paper()`. `mvcjax.FoldFree()` never folds,
-                and `mvcjax.GaussNewton()` solves to a tolerance.
-            init: the start, see `Rig.start` (default `"turned"`).
+                `init=mvcjax.advanced.RestStart()` on `Weights.paper()`.
+                `mvcjax.FoldFree()` never folds, and `mvcjax.GaussNewton()` solves to a
+                tolerance.
+            init: the start, see `Rig.start` (default `TurnedStart()`).
             return_info: also return a `SolveInfo` (converged, iterations, energy,
                 inverted control triangles, the largest handle miss).
 
@@ -619,7 +622,7 @@ class Rig(AbstractRig):
         solver: Any,
         steps: Any,
         *,
-        init: Any = "turned",
+        init: Init = TurnedStart(),
     ) -> Float[Array, " {steps+1}"]:
         """The energy (6) at the start and after each of `steps` steps of `solver`.
 
@@ -676,7 +679,7 @@ class Rig(AbstractRig):
         targets: Any,
         solver: Any = DEFAULT_SOLVER,
         *,
-        init: Any = "turned",
+        init: Init = TurnedStart(),
         return_info: bool = False,
     ):
         """Solve, then skin: the deformed shape-mesh vertices `(n, 2)` (and the info) for
@@ -734,10 +737,11 @@ def _as_twin(rows):
     def wrap(fn):
         def call(rig, targets, solver, init):
             twin = padded_twin(rig)
+            given = not isinstance(init, AbstractStart)  # control vertices
             if (twin is None or is_traced(rig, targets, init)
-                    or (not isinstance(init, str) and np.shape(init) != rig.energy.rest.shape)):
+                    or (given and np.shape(init) != rig.energy.rest.shape)):
                 return fn(rig, targets, solver, init)
-            if not isinstance(init, str):  # padded vertices start on vertex 0
+            if given:  # padded vertices start on vertex 0
                 init = np.asarray(init)
                 init = pad_rows(init, twin.energy.rest.shape[0], init[0])
             out, info = fn(twin, targets, solver, init)

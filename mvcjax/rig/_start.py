@@ -14,33 +14,82 @@ global step gives the vertices that meet these targets and the handles best.
 
 from __future__ import annotations
 
-from typing import Any
+import abc
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse
 import scipy.sparse.linalg
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int
 
-from ..core import as_array, finite_when_traced, kind_of
+from ..core import as_array, finite_when_traced, kind_of, refuse_string
 from ..energy import AbstractFactor, Energy, rigid_alignment, rigid_start
 from ..geometry import edges as mesh_edges
 from ._handles import Handles
 
-STARTS = ("turned", "rigid", "rest")
+
+class AbstractStart(eqx.Module):
+    """Where a solve starts: control vertices for targets in the rig's frame.
+
+    Pass one as `init=` of `Rig.solve`, `Rig.deform`, `Rig.start` (and a character's):
+    `TurnedStart()` (the default), `RigidStart()` or `RestStart()`; an explicit
+    `(c, 2)` array of control vertices is taken too. A new start subclasses this and
+    defines `__call__`.
+    """
+
+    @abc.abstractmethod
+    def __call__(self, energy: Energy, factor: AbstractFactor, handles: Handles,
+                 turns: Float[Array, "n r"], targets: Float[Array, "t 2"]
+                 ) -> Float[Array, "n 2"]:
+        """The start's `(n, 2)` control vertices for `targets` (a row per target), with
+        `turns` the rig's harmonic weights spreading each pinned row over the mesh."""
 
 
-def checked_start(init: Any, shape: tuple[int, int]) -> Any:
-    """`init`: a start's name, or `shape` = `(c, 2)` finite control vertices (checked on
-    the host where concrete, when run where traced)."""
-    if isinstance(init, str):
-        if init not in STARTS:
-            raise ValueError(f"init must be one of {STARTS} or a (c, 2) array, got "
-                             f"{init!r}.")
+class TurnedStart(AbstractStart):
+    """Every bone's turn, and the handles' rigid turn, spread over the control mesh,
+    then one global step: a limb turned far starts turned, not squeezed (the module's
+    docstring says how)."""
+
+    def __call__(self, energy, factor, handles, turns, targets):
+        return turned_start(energy, factor, handles, turns, targets)
+
+
+class RigidStart(AbstractStart):
+    """The rest mesh moved rigidly (2D Procrustes) to fit the targets."""
+
+    def __call__(self, energy, factor, handles, turns, targets):
+        return rigid_start(energy, handles.pinned_targets(targets))
+
+
+class RestStart(AbstractStart):
+    """The rest mesh as it is: the paper's start."""
+
+    def __call__(self, energy, factor, handles, turns, targets):
+        return energy.rest
+
+
+# What `init=` takes: a start, or `(c, 2)` control vertices (a string, a start's name
+# before starts were objects, is taken to be refused with the object to write).
+Init = AbstractStart | Float[ArrayLike, "c 2"] | str
+
+_STARTS = {"turned": "mvcjax.advanced.TurnedStart()", "rigid": "mvcjax.advanced.RigidStart()",
+           "rest": "mvcjax.advanced.RestStart()"}
+
+
+def checked_start(init: Init, shape: tuple[int, int]) -> AbstractStart | Float[ArrayLike, "c 2"]:
+    """`init`: a start, or `shape` = `(c, 2)` finite control vertices (checked on the
+    host where concrete, when run where traced)."""
+    if isinstance(init, AbstractStart):
         return init
+    refuse_string("init", init, _STARTS)
+    if isinstance(init, str):
+        raise TypeError(f"init must be a start, {', '.join(_STARTS.values())}, or a "
+                        f"(c, 2) array, got {init!r}.")
     message = ("init holds NaN or infinite coordinates; give finite (x, y) control "
-               "vertices (a previous frame's), or a start's name such as 'turned'.")
+               "vertices (a previous frame's), or a start such as "
+               "mvcjax.advanced.TurnedStart().")
     if isinstance(init, jax.core.Tracer):
         checked = finite_when_traced(init, message)
     else:
@@ -135,16 +184,3 @@ def turned_start(
     part = factor.handle_part(pinned)
     local = part.rest_local * jnp.exp(1j * row_angle.astype(part.rest_local.real.dtype))
     return factor.global_step(local.astype(part.rest_local.dtype), part).T
-
-
-def start_vertices(energy: Energy, factor: AbstractFactor, handles: Handles,
-                   weights: Float[Array, "n r"], targets: Float[Array, "t 2"],
-                   init: str) -> Float[Array, "n 2"]:
-    """The start named by `init` (one of `STARTS`) for targets in the rig's frame."""
-    if init == "turned":
-        return turned_start(energy, factor, handles, weights, targets)
-    if init == "rigid":
-        return rigid_start(energy, handles.pinned_targets(targets))
-    if init == "rest":
-        return energy.rest
-    raise ValueError(f"init must be one of {STARTS} or an array, got {init!r}.")
