@@ -56,8 +56,12 @@ def _demo(args) -> int:
         _say(f"arm        : {name:<9}: {folded} shape triangles folded, "
              f"{int(info.inverted)} control triangles inverted, handles missed by "
              f"{float(info.handle_miss):.2f}")
-    _say(f"animation  : {args.animation} ({args.frames} frames, {args.size}x{args.size}; "
-         f"deformed and drawn in {draw_time:.1f} s, compiling included)")
+    # A frame the same as the one before is written as one image held longer.
+    images = 1 + int(np.any(pictures[1:] != pictures[:-1], axis=(1, 2, 3)).sum())
+    held = "" if images == args.frames else f" in {images} images, a repeated frame held"
+    _say(f"animation  : {args.animation} ({args.frames} frames{held}, "
+         f"{args.size}x{args.size}; deformed and drawn in {draw_time:.1f} s, compiling "
+         "included)")
     _say(f"figure     : {args.out}")
     if args.layers is not None:
         _layers_demo(args.layers, args.frames)

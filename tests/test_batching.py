@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import mvcjax
-from mvcjax.core._batching import with_batching_rule
+from mvcjax.core import with_batching_rule
 from mvcjax.geometry import _skinning
 
 from conftest import directional_derivatives

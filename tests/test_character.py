@@ -9,7 +9,7 @@ from PIL import Image
 
 import mvcjax
 from mvcjax import datasets
-from mvcjax.rig._handles import parse_handles
+from mvcjax.rig import parse_handles
 
 BODY, LEFT_ARM, RIGHT_ARM, HAND = range(4)
 

@@ -5,7 +5,7 @@ import pytest
 
 import mvcjax
 from mvcjax import datasets
-from mvcjax.energy._energy import rigid_alignment
+from mvcjax.energy import rigid_alignment
 from mvcjax.energy._factor import dense_factor, operators
 
 from conftest import directional_derivatives, drag, local_point

@@ -124,7 +124,7 @@ def test_moves_after_release_or_away_from_handles_change_nothing(horse_rig32):
 def shape_point_away_from_handles(rig, seed=0):
     """A shape-mesh vertex inside the horse, far from every handle and the outline."""
     v = np.asarray(rig.shape_mesh.vertices, np.float64)
-    loops = mvcjax.geometry._topology.boundary_loops(np.asarray(rig.shape_mesh.faces))
+    loops = mvcjax.geometry.boundary_loops(np.asarray(rig.shape_mesh.faces))
     handles = np.asarray(rig.handle_positions)
     far = np.min(np.linalg.norm(v[:, None] - handles[None], axis=2), axis=1)
     ok = np.setdiff1d(np.flatnonzero(far > 60.0), np.concatenate(loops))

@@ -9,8 +9,8 @@ import pytest
 from hypothesis import given, strategies as st
 
 import mvcjax
-from mvcjax.energy._factor import dense_factor
-from mvcjax.rig._ladder import padded_twin
+from mvcjax.energy import dense_factor
+from mvcjax.rig import padded_twin
 
 
 def star(points, outer, inner, centre=(0.0, 0.0)):

@@ -28,7 +28,7 @@ def targets_for(rig, offsets, spare_rows=()):
 def inner_point(rig, seed=0):
     """A shape-mesh vertex off the outline and away from the handles."""
     v = np.asarray(rig.shape_mesh.vertices, np.float64)
-    boundary = np.unique(np.concatenate(mvcjax.geometry._topology.boundary_loops(
+    boundary = np.unique(np.concatenate(mvcjax.geometry.boundary_loops(
         np.asarray(rig.shape_mesh.faces))))
     handles = np.asarray(rig.handle_positions)[:rig.handles.count]
     far = np.min(np.linalg.norm(v[:, None] - handles[None], axis=2), axis=1)

@@ -530,8 +530,10 @@ def test_frames_draws_batches_as_bytes_with_silent_progress(renderer, rig, capfd
         renderer.frames(frames, devices=[])
 
 
-@pytest.mark.parametrize(("alpha", "expected"), [("picture", [0.5, 0.0, 0.5, 1.0]),
-                                                 ("mesh", [1.0, 0.0, 0.0, 1.0])])
+@pytest.mark.parametrize(("alpha", "expected"),
+                         [(mvcjax.advanced.PictureAlpha(), [0.5, 0.0, 0.5, 1.0]),
+                          (mvcjax.advanced.MeshAlpha(), [1.0, 0.0, 0.0, 1.0])],
+                         ids=["picture", "mesh"])
 def test_a_partly_transparent_picture_lies_over_the_background(alpha, expected):
     square = np.array([[0, 0], [9, 0], [9, 9], [0, 9]], float)
     faces = np.array([[0, 1, 2], [0, 2, 3]])
@@ -626,7 +628,7 @@ def test_every_way_of_drawing_says_when_a_pose_is_cut_off(renderer, rig, draw):
 
 def _sprite_arm_across_the_chest():
     from mvcjax import datasets
-    from mvcjax.rig._handles import parse_handles
+    from mvcjax.rig import parse_handles
 
     rig = mvcjax.Rig.build(datasets.sprite(), datasets.sprite_handles())
     targets, _, _ = parse_handles(datasets.sprite_handles())

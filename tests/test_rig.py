@@ -8,7 +8,7 @@ import pytest
 
 import mvcjax
 from mvcjax import datasets
-from mvcjax.geometry._topology import boundary_loops
+from mvcjax.geometry import boundary_loops
 
 from conftest import directional_derivatives, drag, scipy_minimum
 

@@ -197,7 +197,7 @@ def test_weights_out_of_float32_range_are_refused():
 
 
 def test_check_weights_says_how_to_write_weights():
-    from mvcjax.energy._energy import check_weights
+    from mvcjax.energy import check_weights
 
     weights = mvcjax.Weights(handle=10.0)
     assert check_weights(weights) is weights

@@ -3,7 +3,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import export
 
-from mvcjax.core._xla import materialise
+from mvcjax.core import materialise
 
 
 def f(x):
