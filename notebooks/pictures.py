@@ -275,7 +275,7 @@ for name in ("left arm", "right arm"):
     depths[ROW[name]:ROW[name] + 2] = 0.0
 depth = mvcjax.depth_from_handles(rig, depths)
 behind = mvcjax.Renderer.build(rig, picture, depth=depth)
-arms = depth == 0.0
+arms = depth < 0.5  # the arms' vertices (nearer their handles, a little higher than 0)
 
 fig, axes = plt.subplots(1, 3, figsize=(12, 4))
 on_arm = arms[faces].all(axis=1)

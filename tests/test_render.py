@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from skimage import data, draw, morphology, transform
+from skimage import data, draw, measure, morphology, transform
 
 import mvcjax
 from mvcjax import datasets
@@ -484,9 +484,12 @@ def test_depth_from_handles_follows_the_mesh_to_the_nearest_handle(rig):
     depths = np.arange(rig.handles.count, dtype=float)
     depth = mvcjax.depth_from_handles(rig, depths)
     assert depth.shape == (rig.shape_mesh.vertices.shape[0],)
-    # Each handle's own vertex has its depth, and every depth is one of the handles'.
+    # Each handle's own vertex has its depth; every other vertex its nearest handle's,
+    # lowered by under a quarter of the step between two depths the farther it lies.
     np.testing.assert_array_equal(depth[np.asarray(rig.shape_mesh.handles)], depths)
-    assert set(np.unique(depth)) == set(depths)
+    owner = np.floor(depth + 0.5)
+    assert set(np.unique(owner)) == set(depths)
+    assert np.all(depth <= owner) and np.all(depth >= owner - 0.25)
     with pytest.raises(ValueError, match="one per row of the targets"):
         mvcjax.depth_from_handles(rig, [1.0])
 
@@ -503,10 +506,36 @@ def test_depth_from_handles_puts_a_bone_on_top(rig, picture):
     # Handle 0's part moved over the middle of the shape by translating its vertices.
     depth = mvcjax.depth_from_handles(rig, [1.0, 0.0, 0.0, 0.0])
     moved = base.copy()
-    moved[depth == 1.0] += [35.0, 20.0]
+    moved[depth > 0.5] += [35.0, 20.0]
     a, b = np.asarray(front(jnp.asarray(moved))), np.asarray(back(jnp.asarray(moved)))
     differs = np.abs(a - b).max(axis=-1) > 0.05
     assert differs.sum() > 20  # where the parts overlap, the order shows
+
+
+def test_a_limb_over_a_part_without_a_handle_is_drawn_whole(capfd):
+    """The sprite's right arm (drawn on top) raised across its head, which holds no
+    handle: the head's half nearest the arm shares the arm's depth, and the arm must lie
+    whole over it, not in specks of sleeve showing through the face."""
+    rig = mvcjax.Rig.build(datasets.sprite(), datasets.sprite_handles())
+    targets = np.array(rig.handle_positions)
+    shoulder, wrist = targets[3], targets[4]  # the right arm's bone
+    up = np.radians(120.0)
+    targets[4] = shoulder + np.linalg.norm(wrist - shoulder) * np.array([np.cos(up),
+                                                                         np.sin(up)])
+    depths = np.zeros(rig.handles.count)
+    depths[3:5] = 1.0
+    renderer = mvcjax.Renderer.build(rig, datasets.sprite_picture(), size=(390, 360),
+                                     depth=mvcjax.depth_from_handles(rig, depths))
+    posed = rig.deform(targets)
+    # The default solver folds the shoulder here (counted), away from the head.
+    folded = int(np.sum(mvcjax.flipped_triangles(rig.shape_mesh.vertices, posed,
+                                                 rig.shape_mesh.faces)))
+    picture = np.asarray(renderer(posed, window=GROWN))
+    shirt = np.array([52, 101, 164]) / 255  # the arm's sleeve is the shirt's blue
+    blue = (np.abs(picture[..., :3] - shirt).max(axis=-1) < 0.08) & (picture[..., 3] > 0.99)
+    sizes = np.bincount(measure.label(blue).ravel())[1:]
+    assert len(sizes) == 1, (f"{len(sizes) - 1} specks of sleeve apart from the shirt "
+                             f"(sizes {sorted(sizes)[:-1]}); {folded} folded triangles")
 
 
 def test_frames_draws_batches_as_bytes_with_silent_progress(renderer, rig, capfd):

@@ -14,7 +14,7 @@ from jaxtyping import Array, ArrayLike, Float
 from scipy import ndimage
 
 from ..geometry import Shape, barycentric_coordinates, load_image, locate_points
-from ..rendering import depth_from_handles
+from ..rendering import spread_from_handles
 from ..rig import Bone, Rig
 from ._configs import CharacterConfig, ConfigError
 from ._retarget import rest_points
@@ -62,7 +62,7 @@ class Drawing(eqx.Module):
         shape = Shape.from_image(mask)
         handles, rows, owners = _handles(shape, rest, config.parents)
         rig = Rig.build(shape, handles, **build)
-        nearest = np.asarray(depth_from_handles(rig, owners))
+        nearest, _ = spread_from_handles(rig, owners, "owners")
         picture = load_image(config.texture)
         if picture.shape[:2] != mask.shape:
             raise ConfigError(f"{config.texture}: {picture.shape[1]}x{picture.shape[0]} "

@@ -20,5 +20,6 @@ from ._render import (
     in_window as in_window,
     key_layout as key_layout,
     render as render,
+    spread_from_handles as spread_from_handles,
     to_pixels as to_pixels,
 )

@@ -1206,11 +1206,17 @@ def _bilinear(texture, u, v):
     return top * (1 - fr) + bottom * fr
 
 
-def depth_from_handles(rig: Any, depths: Any) -> Float[np.ndarray, " n"]:
+def depth_from_handles(rig: AbstractRig, depths: Any) -> Float[np.ndarray, " n"]:
     """A depth per shape-mesh vertex from a depth per handle, for `Renderer.build(depth=)`:
     each vertex takes the depth of the handle nearest to it along the mesh (a geodesic
     distance, so that an arm's vertices follow the arm's handle, not the body's one
     across a gap).
+
+    A part that holds no handle (a head between two shoulders) is shared among the
+    handles nearest to it, and where a limb is posed over it, the limb and the part
+    of it sharing the limb's depth would tie: within each handle's depth, the vertices
+    nearer the handle are drawn on top (by less than the smallest step between two
+    depths given), so that the limb lies whole over what is farther from its handle.
 
     Args:
         rig: a `Rig`.
@@ -1218,29 +1224,41 @@ def depth_from_handles(rig: Any, depths: Any) -> Float[np.ndarray, " n"]:
             start and end; a bone's pinned points take depths between the two). Larger
             depths are drawn on top.
     """
-    import scipy.sparse.csgraph
+    depth, distance = spread_from_handles(rig, depths, "depths")
+    distinct = np.unique(depth)
+    step = np.diff(distinct).min() if len(distinct) > 1 else 1.0
+    farthest = distance.max()
+    return depth - 0.25 * step * distance / farthest if farthest > 0 else depth
 
-    depths = np.asarray(depths, np.float64)
+
+def spread_from_handles(rig: AbstractRig, values: Any,
+                        name: str = "values") -> tuple[np.ndarray, np.ndarray]:
+    """Each shape-mesh vertex's value of the handle nearest to it along the mesh, and
+    its distance along the mesh to that handle: `((n,), (n,))`.
+
+    `values` holds a number per row of the targets (a bone's pinned points take values
+    between its start's and its end's); rows that pin nothing (spare pins, pins taken
+    out) give none.
+    """
+    values = np.asarray(values, np.float64)
     count = rig.handles.count
-    if depths.shape != (count,) or not np.all(np.isfinite(depths)):
-        raise ValueError(f"depths must be {count} finite numbers, one per row of the targets "
-                         f"(a point handle has one, a bone two), got shape {depths.shape}.")
+    if values.shape != (count,) or not np.all(np.isfinite(values)):
+        raise ValueError(f"{name} must be {count} finite numbers, one per row of the targets "
+                         f"(a point handle has one, a bone two), got shape {values.shape}.")
     n = rig.shape_mesh.vertices.shape[0]
     graph = _edge_graph(rig.shape_mesh.vertices, rig.shape_mesh.faces)
-    # Rows that pin nothing (spare pins, pins taken out) give no depth.
     pins = np.asarray(rig.handles.row_active())
     pinned = np.asarray(rig.shape_mesh.handles)[pins]
-    _, _, nearest = scipy.sparse.csgraph.dijkstra(graph, directed=False,
-                                                  indices=pinned, min_only=True,
-                                                  return_predecessors=True)
+    distance, _, nearest = scipy.sparse.csgraph.dijkstra(
+        graph, directed=False, indices=pinned, min_only=True, return_predecessors=True)
     handles = rig.handles
     along = np.asarray(handles.along)[pins]
-    row_depth = ((1 - along) * depths[np.asarray(handles.first)[pins]]
-                 + along * depths[np.asarray(handles.second)[pins]])
-    # A vertex pinned by several rows (bones sharing a joint) keeps the last one's depth.
+    row_value = ((1 - along) * values[np.asarray(handles.first)[pins]]
+                 + along * values[np.asarray(handles.second)[pins]])
+    # A vertex pinned by several rows (bones sharing a joint) keeps the last one's value.
     by_vertex = np.zeros(n)
-    by_vertex[pinned] = row_depth
-    return by_vertex[np.maximum(nearest, 0)]
+    by_vertex[pinned] = row_value
+    return by_vertex[np.maximum(nearest, 0)], np.where(np.isfinite(distance), distance, 0.0)
 
 
 def render(mesh: Any, vertices: Any, image: Any = None, **options: Any) -> Float[Array,
