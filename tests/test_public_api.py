@@ -49,39 +49,42 @@ def square():
     shape = mvcjax.Shape.from_polygon([(0, 0), (40, 0), (40, 40), (0, 40)])
     rig = mvcjax.Rig.build(shape, [(5, 5), (35, 35)])
     renderer = mvcjax.Renderer.build(rig, size=(24, 24))
-    picture = np.ones((24, 24, 3))
-    picture[6:18, 6:18] = 0.2
+    picture = np.ones((24, 24, 4))  # opaque: a dark square on white
+    picture[6:18, 6:18, :3] = 0.2
     return rig, renderer, rig.handle_positions, picture
 
 
-# Each option that was once a string: the call with the old string, the object to write.
+# Each option that was once a string: a call taking the option's value, the old string,
+# the object to write instead.
 OLD_STRINGS = {
-    "init-turned": (lambda r, d, t, p: r.deform(t, init="turned"), "TurnedStart"),
-    "init-rigid": (lambda r, d, t, p: r.solve(t, init="rigid"), "RigidStart"),
-    "init-rest": (lambda r, d, t, p: r.start(t, init="rest"), "RestStart"),
-    "window": (lambda r, d, t, p: d(r.deform(t), window="grow"), "GrownWindow"),
-    "fill": (lambda r, d, t, p: mvcjax.Renderer.build(r, fill="checkerboard"), "Checkerboard"),
-    "alpha-mesh": (lambda r, d, t, p: mvcjax.Renderer.build(r, alpha="mesh"), "MeshAlpha"),
-    "alpha-picture": (lambda r, d, t, p: mvcjax.Renderer.build(r, alpha="picture"),
+    "init-turned": (lambda r, d, t, p, o: r.deform(t, init=o), "turned", "TurnedStart"),
+    "init-rigid": (lambda r, d, t, p, o: r.solve(t, init=o), "rigid", "RigidStart"),
+    "init-rest": (lambda r, d, t, p, o: r.start(t, init=o), "rest", "RestStart"),
+    "window": (lambda r, d, t, p, o: d(r.deform(t), window=o), "grow", "GrownWindow"),
+    "fill": (lambda r, d, t, p, o: mvcjax.Renderer.build(r, fill=o), "checkerboard",
+             "Checkerboard"),
+    "alpha-mesh": (lambda r, d, t, p, o: mvcjax.Renderer.build(r, alpha=o), "mesh",
+                   "MeshAlpha"),
+    "alpha-picture": (lambda r, d, t, p, o: mvcjax.Renderer.build(r, alpha=o), "picture",
                       "PictureAlpha"),
-    "channels-rgba": (lambda r, d, t, p: mvcjax.image_loss(r, d, t, p, channels="rgba"),
+    "channels-rgba": (lambda r, d, t, p, o: mvcjax.image_loss(r, d, t, p, channels=o), "rgba",
                       "RGBAChannels"),
-    "channels-alpha": (lambda r, d, t, p: mvcjax.image_loss(r, d, t, p, channels="alpha"),
-                       "AlphaChannel"),
-    "background-mask": (lambda r, d, t, p: mvcjax.image_mask(p, background="corner"),
+    "channels-alpha": (lambda r, d, t, p, o: mvcjax.image_loss(r, d, t, p, channels=o),
+                       "alpha", "AlphaChannel"),
+    "background-mask": (lambda r, d, t, p, o: mvcjax.image_mask(p, background=o), "corner",
                         "CornerColour"),
-    "background-cut": (lambda r, d, t, p: mvcjax.cut_out(p, background="corner"),
+    "background-cut": (lambda r, d, t, p, o: mvcjax.cut_out(p, background=o), "corner",
                        "CornerColour"),
 }
 
 
 @pytest.mark.parametrize("case", sorted(OLD_STRINGS))
 def test_an_option_once_a_string_is_an_object_and_the_string_says_which(square, case):
-    call, name = OLD_STRINGS[case]
+    call, old, name = OLD_STRINGS[case]
     with pytest.raises(TypeError, match=rf"options are objects; write \w+=mvcjax\.advanced\."
                                         rf"{name}\(\)"):
-        call(*square)
-    assert isinstance(getattr(mvcjax.advanced, name)(), mvcjax.advanced.__dict__[name])
+        call(*square, old)
+    assert call(*square, getattr(mvcjax.advanced, name)()) is not None  # what it names works
 
 
 def test_the_option_objects_do_what_the_strings_did(square):
