@@ -71,7 +71,7 @@ def _rule_and_plain(rig, case, frames):
     solver = mvcjax.FixedG()
     local = jax.vmap(rig.frame.to_local)(frames)
     pinned = jax.vmap(rig.handles.pinned_targets)(local)
-    starts = jax.vmap(lambda t: rig._local_start(t, "turned"))(local)
+    starts = jax.vmap(lambda t: rig._local_start(t, mvcjax.advanced.TurnedStart()))(local)
     if case == "fixed_g":
         def solve_with(fn):
             return jax.vmap(lambda p, s: fn(rig.energy, rig.factor, p, s)[0])(pinned, starts)

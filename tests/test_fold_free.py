@@ -199,5 +199,5 @@ def test_the_turned_start_turns_the_bone(arm_rig):
     assert float(miss) < 0.02 * float(arm_rig.frame.scale)
     ratio = signed_areas(start, cm.faces) / signed_areas(cm.vertices, cm.faces)
     assert float(jnp.median(ratio)) == pytest.approx(1.0, abs=0.1)
-    with pytest.raises(ValueError, match="init"):
+    with pytest.raises(TypeError, match="init must be a start"):
         arm_rig.start(targets, "sideways")

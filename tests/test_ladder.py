@@ -109,7 +109,7 @@ def test_a_laddered_rig_solves_from_every_start_as_a_plain_rig_does():
     plain, rig = plain_and_laddered("points")
     targets, scale = moved(plain), float(plain.frame.scale)
     previous = plain.solve(targets, mvcjax.FixedG(iterations=3))
-    for init in ("rest", previous):
+    for init in (mvcjax.advanced.RestStart(), previous):
         np.testing.assert_allclose(rig.deform(targets, init=init),
                                    plain.deform(targets, init=init), rtol=0,
                                    atol=1e-8 * scale)

@@ -15,6 +15,7 @@ global step gives the vertices that meet these targets and the handles best.
 from __future__ import annotations
 
 import abc
+from collections.abc import Sequence
 
 import equinox as eqx
 import jax
@@ -70,9 +71,9 @@ class RestStart(AbstractStart):
         return energy.rest
 
 
-# What `init=` takes: a start, or `(c, 2)` control vertices (a string, a start's name
-# before starts were objects, is taken to be refused with the object to write).
-Init = AbstractStart | Float[ArrayLike, "c 2"] | str
+# What `init=` takes: a start, or `(c, 2)` control vertices as an array or nested lists
+# (anything else, a string included, is refused by `checked_start` naming what to write).
+Init = AbstractStart | Float[ArrayLike, "c 2"] | Sequence
 
 _STARTS = {"turned": "mvcjax.advanced.TurnedStart()", "rigid": "mvcjax.advanced.RigidStart()",
            "rest": "mvcjax.advanced.RestStart()"}
