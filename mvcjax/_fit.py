@@ -24,7 +24,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
-from .core import compiled_by, kind_of, refuse_string, whole_number
+from .core import checked_option, compiled_by, kind_of, whole_number
 from .rendering import Renderer, as_picture, check_drawn_mesh, in_window
 from .rig import AbstractRig
 from .solvers import DEFAULT_SOLVER, AbstractSolver, check_solver
@@ -95,13 +95,9 @@ class FitResult(eqx.Module):
 
 
 def _check_channels(channels) -> AbstractChannels:
-    refuse_string("channels", channels, {"rgba": "mvcjax.advanced.RGBAChannels()",
-                                         "alpha": "mvcjax.advanced.AlphaChannel()"})
-    if not isinstance(channels, AbstractChannels):
-        raise TypeError(f"channels must be mvcjax.advanced.RGBAChannels() (compare "
-                        f"premultiplied colour) or mvcjax.advanced.AlphaChannel() (compare "
-                        f"silhouettes only), got {channels!r}.")
-    return channels
+    return checked_option("channels", channels, AbstractChannels,
+                          {"rgba": "mvcjax.advanced.RGBAChannels()",
+                           "alpha": "mvcjax.advanced.AlphaChannel()"})
 
 
 def _check_pair(rig, renderer) -> Renderer:

@@ -110,6 +110,15 @@ def refuse_string(name: str, value, objects: dict[str, str]) -> None:
                         f"{name}={objects[value]}.")
 
 
+def checked_option(name: str, value, kind: type, objects: dict[str, str]):
+    """`value` if it is a `kind` (an option object); otherwise a TypeError naming the
+    objects to write: for a string that once named one (a key of `objects`), that one."""
+    if isinstance(value, kind):
+        return value
+    refuse_string(name, value, objects)
+    raise TypeError(f"{name} must be {' or '.join(objects.values())}, got {value!r}.")
+
+
 def as_devices(devices) -> list | None:
     """`devices` as a non-empty list of JAX devices, or None for the default device."""
     if devices is None:

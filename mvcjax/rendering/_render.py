@@ -43,6 +43,7 @@ from ..core import (
     Programs,
     as_devices,
     as_points,
+    checked_option,
     compiled_by,
     kind_of,
     materialise,
@@ -380,11 +381,9 @@ class Renderer(JittableModule):
             _warn_if_on_a_backdrop(picture, texture_points)
         order, level = draw_levels(depth, vertices, faces)
         faces = faces[order]
-        refuse_string("alpha", alpha, {"mesh": "mvcjax.advanced.MeshAlpha()",
-                                       "picture": "mvcjax.advanced.PictureAlpha()"})
-        if not isinstance(alpha, AbstractAlpha):
-            raise TypeError(f"alpha must be mvcjax.advanced.MeshAlpha() or "
-                            f"mvcjax.advanced.PictureAlpha(), got {alpha!r}.")
+        alpha = checked_option("alpha", alpha, AbstractAlpha,
+                               {"mesh": "mvcjax.advanced.MeshAlpha()",
+                                "picture": "mvcjax.advanced.PictureAlpha()"})
         return dict(vertices=vertices, faces=faces, texture_points=texture_points,
                     texture=_texture(picture, alpha), window=window, size=(rows, cols),
                     level=to_device(level, np.int32), budget=budget, background=background,
