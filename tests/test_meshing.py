@@ -9,6 +9,7 @@ from mvcjax.geometry._meshing import (
     hilbert_order,
     triangulate_control,
     triangulate_shape,
+    voronoi_ridges,
 )
 
 
@@ -23,6 +24,38 @@ def control_region(rig):
     cm = rig.control_mesh
     v, f = np.asarray(cm.vertices), np.asarray(cm.faces)
     return shapely.union_all([shapely.Polygon(v[t]) for t in f])
+
+
+def test_voronoi_ridges_agree_with_qhull():
+    """The Voronoi diagram from Triangle's Delaunay triangulation against scipy's (Qhull):
+    the same ridges between the same points, ending at the same vertices."""
+    from scipy.spatial import Voronoi
+
+    pts = np.random.default_rng(3).random((400, 2)) * 7.0 - 3.0
+    centres, ridge_points, ridge_vertices = voronoi_ridges(pts)
+    vor = Voronoi(pts)
+
+    def ends(vertices, pairs, ridges):
+        return {tuple(sorted(p)): sorted(tuple(np.round(vertices[v], 6)) if v >= 0 else ()
+                                         for v in r) for p, r in zip(pairs, ridges)}
+
+    assert (ends(centres, ridge_points, ridge_vertices)
+            == ends(vor.vertices, vor.ridge_points, vor.ridge_vertices))
+
+
+def test_voronoi_ridges_of_cocircular_samples():
+    """On a grid, four samples share each circle: the ridges of positive length are
+    exactly those between neighbours (cells are squares), each vertex at a cell corner."""
+    pts = np.stack(np.meshgrid(np.arange(12.0), np.arange(9.0)), axis=-1).reshape(-1, 2)
+    centres, ridge_points, ridge_vertices = voronoi_ridges(pts)
+    ends = np.where(ridge_vertices[..., None] >= 0, centres[np.maximum(ridge_vertices, 0)],
+                    np.inf)
+    positive = (ridge_vertices < 0).any(axis=1) | (
+        np.linalg.norm(ends[:, 0] - ends[:, 1], axis=1) > 1e-9)
+    pairs = {tuple(sorted(p)) for p in ridge_points[positive]}
+    gap = np.linalg.norm(pts[:, None] - pts[None], axis=-1)
+    assert pairs == {(i, j) for i, j in zip(*np.nonzero(np.isclose(gap, 1.0))) if i < j}
+    np.testing.assert_allclose(centres % 1.0, 0.5, atol=1e-9)
 
 
 @pytest.mark.parametrize("gap", [0.3, 1.0, 6.0])
