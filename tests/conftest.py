@@ -219,3 +219,13 @@ def pytest_collection_modifyitems(config, items):
             raise pytest.UsageError(f"conftest.SLOW: {pattern!r} matches no test; update it.")
         for item in matched:
             item.add_marker(pytest.mark.slow)
+
+
+def pytest_terminal_summary(terminalreporter):
+    # Float64 only where a test needs it: the share is printed with every run.
+    ran = [report for outcome in ("passed", "failed")
+           for report in terminalreporter.stats.get(outcome, []) if report.when == "call"]
+    if ran:
+        wide = sum("float64" in report.keywords for report in ran)
+        terminalreporter.write_line(f"float64: {wide} of {len(ran)} tests run "
+                                    f"({wide / len(ran):.0%})")

@@ -11,9 +11,8 @@ import pytest
 
 import mvcjax
 
-# Agreement with converged references and between batch paths to many digits: in
-# float64.
-pytestmark = pytest.mark.float64
+# Tests that compare with references to many digits, or the solvers' internals, are
+# marked float64; the others run in float32, as users do.
 
 
 def some_frames(rig, count, seed=0):
@@ -22,17 +21,18 @@ def some_frames(rig, count, seed=0):
     return rig.handle_positions[None] + jnp.asarray(offsets, rig.handle_positions.dtype)
 
 
-def test_frames_match_single_frames(horse_rig):
-    targets = some_frames(horse_rig, 10)
-    together = mvcjax.deform_frames(horse_rig, targets, chunk=4)  # chunks that do not divide
-    assert together.shape == (10, *horse_rig.shape_mesh.vertices.shape)
+def test_frames_match_single_frames(horse_rig32):
+    targets = some_frames(horse_rig32, 10)
+    together = mvcjax.deform_frames(horse_rig32, targets, chunk=4)  # chunks that do not divide
+    assert together.shape == (10, *horse_rig32.shape_mesh.vertices.shape)
     for k in range(10):
-        np.testing.assert_allclose(together[k], horse_rig.deform(targets[k]), atol=1e-9)
+        np.testing.assert_allclose(together[k], horse_rig32.deform(targets[k]), atol=1e-3)
 
 
 @pytest.mark.parametrize("solver", [mvcjax.FixedG(iterations=30),
                                     mvcjax.FixedG(iterations=30, anderson=3, unroll=0)],
                          ids=["frames_last", "vmapped"])
+@pytest.mark.float64  # Anderson's small least squares amplify float32's rounding
 def test_each_batch_path_matches_single_frames(horse_rig, solver):
     # A plain FixedG steps all frames together; any other solver is vmapped.
     targets = some_frames(horse_rig, 5, seed=1)
@@ -41,6 +41,7 @@ def test_each_batch_path_matches_single_frames(horse_rig, solver):
         np.testing.assert_allclose(together[k], horse_rig.deform(targets[k], solver), atol=1e-9)
 
 
+@pytest.mark.float64
 def test_gradient_through_frames_matches_single_frames(horse_rig):
     targets = some_frames(horse_rig, 3, seed=2)
 
@@ -54,60 +55,60 @@ def test_gradient_through_frames_matches_single_frames(horse_rig):
                                rtol=1e-9, atol=1e-9)
 
 
-def test_bad_frames_are_explained(horse_rig):
+def test_bad_frames_are_explained(horse_rig32):
     with pytest.raises(ValueError, match="targets must have shape \\(frames, 5, 2\\)"):
-        mvcjax.deform_frames(horse_rig, horse_rig.handle_positions)
+        mvcjax.deform_frames(horse_rig32, horse_rig32.handle_positions)
     with pytest.raises(ValueError, match="no frames"):
-        mvcjax.deform_frames(horse_rig, jnp.zeros((0, 5, 2)))
+        mvcjax.deform_frames(horse_rig32, jnp.zeros((0, 5, 2)))
     with pytest.raises(ValueError, match="chunk must be"):
-        mvcjax.deform_frames(horse_rig, some_frames(horse_rig, 2), chunk=0)
+        mvcjax.deform_frames(horse_rig32, some_frames(horse_rig32, 2), chunk=0)
     with pytest.raises(TypeError, match="chunk must be a whole number"):
-        mvcjax.deform_frames(horse_rig, some_frames(horse_rig, 2), chunk=2.5)
+        mvcjax.deform_frames(horse_rig32, some_frames(horse_rig32, 2), chunk=2.5)
     with pytest.raises(ValueError, match="devices must be a non-empty list"):
-        mvcjax.deform_frames(horse_rig, some_frames(horse_rig, 2), devices=[])
+        mvcjax.deform_frames(horse_rig32, some_frames(horse_rig32, 2), devices=[])
     with pytest.raises(TypeError, match="real"):
-        mvcjax.deform_frames(horse_rig, some_frames(horse_rig, 2) * 1j)
+        mvcjax.deform_frames(horse_rig32, some_frames(horse_rig32, 2) * 1j)
 
 
-def test_frames_with_nan_targets_are_named(horse_rig):
-    frames = np.asarray(some_frames(horse_rig, 6)).copy()
+def test_frames_with_nan_targets_are_named(horse_rig32):
+    frames = np.asarray(some_frames(horse_rig32, 6)).copy()
     frames[2, 1, 0] = np.nan
     frames[4, 0, 1] = np.inf
     with pytest.raises(ValueError, match=r"2 frames .*\[2, 4\]"):
-        mvcjax.deform_frames(horse_rig, frames)
+        mvcjax.deform_frames(horse_rig32, frames)
     # Under jit the values are unknown when traced: checked when run, with the words of
     # the plain call's check, instead of giving those frames back non-finite.
     with pytest.raises(Exception, match="targets contain NaN or infinite values"):
-        jax.block_until_ready(jax.jit(lambda t: mvcjax.deform_frames(horse_rig, t))(frames))
+        jax.block_until_ready(jax.jit(lambda t: mvcjax.deform_frames(horse_rig32, t))(frames))
 
 
-def test_frames_into_a_donated_result_reuse_its_memory(horse_rig, caplog):
-    first, second = some_frames(horse_rig, 6, seed=3), some_frames(horse_rig, 6, seed=4)
-    out = mvcjax.deform_frames(horse_rig, first, chunk=4)
+def test_frames_into_a_donated_result_reuse_its_memory(horse_rig32, caplog):
+    first, second = some_frames(horse_rig32, 6, seed=3), some_frames(horse_rig32, 6, seed=4)
+    out = mvcjax.deform_frames(horse_rig32, first, chunk=4)
     where = out.unsafe_buffer_pointer()
-    again = mvcjax.deform_frames(horse_rig, second, chunk=4, out=out)
+    again = mvcjax.deform_frames(horse_rig32, second, chunk=4, out=out)
     assert out.is_deleted()
     assert again.unsafe_buffer_pointer() == where  # the result lives in out's memory
-    np.testing.assert_array_equal(again, mvcjax.deform_frames(horse_rig, second, chunk=4))
+    np.testing.assert_array_equal(again, mvcjax.deform_frames(horse_rig32, second, chunk=4))
     # New numbers, same program.
     with jax.log_compiles(True), caplog.at_level("WARNING", logger="jax"):
         caplog.clear()
-        mvcjax.deform_frames(horse_rig, first, chunk=4, out=again)
+        mvcjax.deform_frames(horse_rig32, first, chunk=4, out=again)
     assert not [m for m in caplog.messages if m.startswith("Compiling")], caplog.messages
 
 
-def test_bad_out_is_explained(horse_rig):
-    frames = some_frames(horse_rig, 3)
-    out = mvcjax.deform_frames(horse_rig, frames)
+def test_bad_out_is_explained(horse_rig32):
+    frames = some_frames(horse_rig32, 3)
+    out = mvcjax.deform_frames(horse_rig32, frames)
     with pytest.raises(ValueError, match="must have shape \\(2, "):
-        mvcjax.deform_frames(horse_rig, frames[:2], out=out)
+        mvcjax.deform_frames(horse_rig32, frames[:2], out=out)
     with pytest.raises(TypeError, match="concrete JAX array.*got ndarray"):
-        mvcjax.deform_frames(horse_rig, frames, out=np.asarray(out))
+        mvcjax.deform_frames(horse_rig32, frames, out=np.asarray(out))
     with pytest.raises(ValueError, match="one device"):
-        mvcjax.deform_frames(horse_rig, frames, out=out, devices=jax.devices() * 2)
-    mvcjax.deform_frames(horse_rig, frames, out=out)
+        mvcjax.deform_frames(horse_rig32, frames, out=out, devices=jax.devices() * 2)
+    mvcjax.deform_frames(horse_rig32, frames, out=out)
     with pytest.raises(ValueError, match="deleted"):
-        mvcjax.deform_frames(horse_rig, frames, out=out)
+        mvcjax.deform_frames(horse_rig32, frames, out=out)
 
 
 SHARDED = """
@@ -143,6 +144,7 @@ def test_frames_sharded_over_four_devices_give_the_same_result():
 
 @pytest.mark.parametrize("factor", [mvcjax.advanced.DenseG(), mvcjax.advanced.SparseLU()],
                          ids=["dense", "sparse"])
+@pytest.mark.float64
 def test_fixed_g_vmapped_steps_all_frames_as_plain_batching_would(horse, factor):
     # Under jax.vmap a plain FixedG steps every frame together (frames on the last axis),
     # through its batching rule; JAX's own batching of the loop iterates the same map.
@@ -163,6 +165,7 @@ def test_fixed_g_vmapped_steps_all_frames_as_plain_batching_would(horse, factor)
 
 @pytest.mark.parametrize("solver", [mvcjax.FixedG(iterations=30), mvcjax.FoldFree()],
                          ids=["FixedG", "FoldFree"])
+@pytest.mark.float64
 def test_warm_started_frames_start_each_from_the_pose_before(horse_rig, solver):
     frames = some_frames(horse_rig, 4, seed=5)
     posed = mvcjax.deform_frames(horse_rig, frames, solver, warm_start=True)

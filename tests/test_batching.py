@@ -12,8 +12,8 @@ from mvcjax.geometry import _skinning
 
 from conftest import directional_derivatives
 
-# Agreement with references to many digits, and the solvers' internals: in float64.
-pytestmark = pytest.mark.float64
+# Tests that compare with references to many digits, or the solvers' internals, are
+# marked float64; the others run in float32, as users do.
 
 
 def some_frames(rig, count, seed=0, scale=8.0):
@@ -22,33 +22,37 @@ def some_frames(rig, count, seed=0, scale=8.0):
     return rig.handle_positions[None] + jnp.asarray(offsets, rig.handle_positions.dtype)
 
 
-def test_jit_of_the_bound_methods_works_and_compiles_once(horse_rig):
-    frames = some_frames(horse_rig, 3)
-    deform = jax.jit(horse_rig.deform)
+def test_jit_of_the_bound_methods_works_and_compiles_once(horse_rig32):
+    frames = some_frames(horse_rig32, 3)
+    deform = jax.jit(horse_rig32.deform)
     for t in frames:
-        np.testing.assert_allclose(deform(t), horse_rig.deform(t), atol=1e-9)
+        np.testing.assert_allclose(deform(t), horse_rig32.deform(t), atol=1e-3)
     assert deform._cache_size() == 1  # new targets: no new program
     # The rig as an argument: one program for every rig of these sizes.
-    np.testing.assert_allclose(jax.jit(mvcjax.Rig.deform)(horse_rig, frames[0]),
-                               deform(frames[0]), atol=1e-9)
-    control = jax.jit(horse_rig.solve)(frames[0])
-    np.testing.assert_allclose(control, horse_rig.solve(frames[0]), atol=1e-9)
-    np.testing.assert_allclose(jax.jit(horse_rig.skin)(control), horse_rig.skin(control),
-                               atol=1e-9)
-    renderer = mvcjax.Renderer.build(horse_rig, size=(24, 32))
-    np.testing.assert_allclose(jax.jit(renderer)(horse_rig.shape_mesh.vertices),
-                               renderer(horse_rig.shape_mesh.vertices), atol=1e-9)
+    np.testing.assert_allclose(jax.jit(mvcjax.Rig.deform)(horse_rig32, frames[0]),
+                               deform(frames[0]), atol=1e-3)
+    control = jax.jit(horse_rig32.solve)(frames[0])
+    np.testing.assert_allclose(control, horse_rig32.solve(frames[0]), atol=1e-3)
+    np.testing.assert_allclose(jax.jit(horse_rig32.skin)(control), horse_rig32.skin(control),
+                               atol=1e-3)
+    renderer = mvcjax.Renderer.build(horse_rig32, size=(24, 32))
+    np.testing.assert_allclose(jax.jit(renderer)(horse_rig32.shape_mesh.vertices),
+                               renderer(horse_rig32.shape_mesh.vertices), atol=1e-6)
 
 
-def test_equal_rigs_hash_equal(horse, horse_rig):
-    again = mvcjax.Rig.build(horse, mvcjax.datasets.horse_handles(), dtype=jnp.float64,
-                             weights=mvcjax.Weights.paper())
-    assert again == horse_rig and hash(again) == hash(horse_rig)
-    other = horse_rig.with_weights(mvcjax.Weights.paper(length=3.0))
-    assert other != horse_rig  # same structure, other values: same bucket, not equal
-    assert hash(other) == hash(horse_rig)
+def test_equal_rigs_hash_equal(horse):
+    def paper(**weights):
+        return mvcjax.Rig.build(horse, mvcjax.datasets.horse_handles(),
+                                weights=mvcjax.Weights.paper(**weights))
+
+    rig, again = paper(), paper()
+    assert again == rig and hash(again) == hash(rig)
+    other = rig.with_weights(mvcjax.Weights.paper(length=3.0))
+    assert other != rig  # same structure, other values: same bucket, not equal
+    assert hash(other) == hash(rig)
 
 
+@pytest.mark.float64
 def test_vmap_of_deform_solve_and_skin_match_single_frames(horse_rig):
     frames = some_frames(horse_rig, 5, seed=1)
     shape = jax.jit(jax.vmap(horse_rig.deform))(frames)
@@ -88,6 +92,7 @@ def _rule_and_plain(rig, case, frames):
 @pytest.mark.parametrize("case", ["fixed_g", "skinning", "skin_into"])
 @pytest.mark.parametrize("rig_name, tolerance", [("horse_rig", 1e-12), ("horse_rig32", 1e-6)],
                          ids=["float64", "float32"])
+@pytest.mark.float64
 def test_each_kept_rule_agrees_with_the_plain_vmap(request, rig_name, tolerance, case):
     # The second implementations round differently from JAX's batching of the single
     # frame's path, and by no more than that: within a few roundings of the shape's size.
@@ -99,6 +104,7 @@ def test_each_kept_rule_agrees_with_the_plain_vmap(request, rig_name, tolerance,
     np.testing.assert_allclose(fast, plain, rtol=0, atol=tolerance * size)
 
 
+@pytest.mark.float64
 def test_vmap_takes_the_batching_rules(horse_rig, monkeypatch):
     # The fixed-G rule steps the frames together; the skinning's is one batched product
     # over blocks of rows, a few frames at a time.
@@ -135,71 +141,73 @@ def test_vmap_takes_the_batching_rules(horse_rig, monkeypatch):
 
 
 @pytest.mark.parametrize("frames, group", [(1, None), (5, None), (37, 8)])
-def test_the_blocked_skinning_of_many_frames_matches_single_frames(horse_rig, frames, group,
+def test_the_blocked_skinning_of_many_frames_matches_single_frames(horse_rig32, frames, group,
                                                                    monkeypatch):
     # One product for a few frames; groups of 8 frames for 37 (the last padded, then cut).
     if group:
         monkeypatch.setattr(_skinning, "frames_per_product", lambda n: group)
-    control = jax.vmap(horse_rig.solve)(some_frames(horse_rig, frames, seed=3))
-    many = jax.vmap(horse_rig.skin)(control)
-    assert many.shape == (frames, *horse_rig.shape_mesh.vertices.shape)
-    single = jax.jit(horse_rig.skin)
+    control = jax.vmap(horse_rig32.solve)(some_frames(horse_rig32, frames, seed=3))
+    many = jax.vmap(horse_rig32.skin)(control)
+    assert many.shape == (frames, *horse_rig32.shape_mesh.vertices.shape)
+    single = jax.jit(horse_rig32.skin)
     for k in range(frames):
-        np.testing.assert_allclose(many[k], single(control[k]), atol=1e-9)
+        np.testing.assert_allclose(many[k], single(control[k]), atol=1e-3)
 
 
-def test_points_in_no_order_skip_the_blocks(horse_rig):
+def test_points_in_no_order_skip_the_blocks(horse_rig32):
     # Blocks of scattered points would be as wide as a dense W: none are built, and vmap
     # maps the single frame's skinning instead, with the same result.
-    vertices = np.asarray(horse_rig.shape_mesh.vertices)
+    vertices = np.asarray(horse_rig32.shape_mesh.vertices)
     points = vertices[np.random.default_rng(0).permutation(len(vertices))]
-    scattered = horse_rig.weights_at(points)
+    scattered = horse_rig32.weights_at(points)
     assert scattered.block_weights.shape[0] == 0
-    assert horse_rig.weights_at(vertices).block_weights.shape[0] > 0
-    control = jax.vmap(horse_rig.solve)(some_frames(horse_rig, 3, seed=4))
+    assert horse_rig32.weights_at(vertices).block_weights.shape[0] > 0
+    control = jax.vmap(horse_rig32.solve)(some_frames(horse_rig32, 3, seed=4))
     many = jax.vmap(scattered)(control)
     single = jax.jit(scattered)
     for k in range(3):
-        np.testing.assert_allclose(many[k], single(control[k]), atol=1e-9)
+        np.testing.assert_allclose(many[k], single(control[k]), atol=1e-3)
 
 
 @pytest.mark.parametrize("frames, group", [(5, None), (37, 8)])
-def test_skinning_into_an_array_matches_single_frames(horse_rig, frames, group, monkeypatch):
+def test_skinning_into_an_array_matches_single_frames(horse_rig32, frames, group, monkeypatch):
     # Groups of 8 for 37 frames: four in the loop, the last five after it.
     if group:
         monkeypatch.setattr(_skinning, "frames_per_product", lambda n: group)
-    control = jax.vmap(horse_rig.solve)(some_frames(horse_rig, frames, seed=5))
-    local = jax.vmap(horse_rig.frame.to_local)(control)
-    out = jnp.full((frames, *horse_rig.shape_mesh.vertices.shape), jnp.nan)
-    into = jax.jit(_skinning.skin_frames_into)(horse_rig.skinning, local, horse_rig.frame, out)
-    single = jax.jit(horse_rig.skin)
+    control = jax.vmap(horse_rig32.solve)(some_frames(horse_rig32, frames, seed=5))
+    local = jax.vmap(horse_rig32.frame.to_local)(control)
+    out = jnp.full((frames, *horse_rig32.shape_mesh.vertices.shape), jnp.nan)
+    into = jax.jit(_skinning.skin_frames_into)(horse_rig32.skinning, local, horse_rig32.frame, out)
+    single = jax.jit(horse_rig32.skin)
     for k in range(frames):
-        np.testing.assert_allclose(into[k], single(control[k]), atol=1e-9)
+        np.testing.assert_allclose(into[k], single(control[k]), atol=1e-3)
     # Scattered points have no blocks: their frames are mapped one by one.
-    vertices = np.asarray(horse_rig.shape_mesh.vertices)
-    scattered = horse_rig.weights_at(vertices[np.random.default_rng(1).permutation(len(vertices))])
+    vertices = np.asarray(horse_rig32.shape_mesh.vertices)
+    order = np.random.default_rng(1).permutation(len(vertices))
+    scattered = horse_rig32.weights_at(vertices[order])
     assert scattered.block_weights.shape[0] == 0
-    into = _skinning.skin_frames_into(scattered, local, horse_rig.frame, out)
-    np.testing.assert_allclose(into[-1], jax.jit(scattered)(local[-1], horse_rig.frame),
-                               atol=1e-9)
+    into = _skinning.skin_frames_into(scattered, local, horse_rig32.frame, out)
+    np.testing.assert_allclose(into[-1], jax.jit(scattered)(local[-1], horse_rig32.frame),
+                               atol=1e-3)
 
 
-def test_blocks_hold_the_rows_exactly(horse_rig):
+def test_blocks_hold_the_rows_exactly(horse_rig32):
     # Each block's dense weights are the rows of W, in order: W from the blocks equals
     # W from the packed tiles (both from the same rows).
-    s = horse_rig.skinning
-    c = horse_rig.control_mesh.vertices.shape[0]
+    s = horse_rig32.skinning
+    c = horse_rig32.control_mesh.vertices.shape[0]
     n = s.slots.shape[0]
     b, j, r = s.block_weights.shape
     from_blocks = np.zeros((b * r, c))
     for i in range(b):
         np.add.at(from_blocks[i * r:(i + 1) * r].T, np.asarray(s.block_indices[i]),
                   np.asarray(s.block_weights[i]))
-    np.testing.assert_allclose(from_blocks[:n], np.asarray(s.matrix(c)), atol=1e-15)
+    np.testing.assert_allclose(from_blocks[:n], np.asarray(s.matrix(c)), atol=1e-7)
     assert not from_blocks[n:].any()
     assert b == -(-n // r) and j < c  # a block uses a few of the control vertices
 
 
+@pytest.mark.float64
 def test_a_batch_of_rigs_falls_back_to_jax_batching(horse_rig):
     # Rules are written for frames of one rig; rigs batched with their targets (here two
     # term weightings) are batched by JAX, and agree with each rig alone.
@@ -211,6 +219,7 @@ def test_a_batch_of_rigs_falls_back_to_jax_batching(horse_rig):
         np.testing.assert_allclose(out[k], rigs[k].deform(frames[k]), atol=1e-9)
 
 
+@pytest.mark.float64
 def test_gradients_through_vmap_match_finite_differences_in_both_modes(horse_rig):
     frames = some_frames(horse_rig, 2, seed=4)
 

@@ -10,10 +10,11 @@ from mvcjax.energy._factor import dense_factor, operators
 
 from conftest import directional_derivatives, drag, local_point
 
-# Agreement with references to many digits, and the solvers' internals: in float64.
-pytestmark = pytest.mark.float64
+# Tests that compare with references to many digits, or the solvers' internals, are
+# marked float64; the others run in float32, as users do.
 
 
+@pytest.mark.float64
 def test_every_residual_vanishes_at_rest(horse_rig):
     e, rest = horse_rig.energy, horse_rig.energy.rest
     for term in [mvcjax.advanced.laplacian_residual, mvcjax.advanced.mvc_residual,
@@ -26,6 +27,7 @@ def test_every_residual_vanishes_at_rest(horse_rig):
                                      horse_rig.handle_positions)) < 1e-18
 
 
+@pytest.mark.float64
 def test_energy_is_the_weighted_sum_of_squared_terms(horse_rig):
     e = horse_rig.energy
     t, v = local_point(horse_rig, np.ones((5, 2)), 2e-3)
@@ -39,6 +41,7 @@ def test_energy_is_the_weighted_sum_of_squared_terms(horse_rig):
     assert float(mvcjax.advanced.total_energy(e, v, t)) == pytest.approx(float(expected), rel=1e-12)
 
 
+@pytest.mark.float64
 def test_energy_gradient_matches_finite_differences(horse_rig):
     e = horse_rig.energy
     t, v = local_point(horse_rig, [[20.0, 5.0]] + [[0.0, 0.0]] * 4, 4e-3, seed=1)
@@ -64,6 +67,7 @@ def test_zero_length_laplacians_are_safe():
     assert bool(jnp.all(jnp.isfinite(out)))
 
 
+@pytest.mark.float64
 def test_g_solves_the_normal_equations(horse_rig):
     e = horse_rig.energy
     lap, mvc, length, handle = operators(e)
@@ -74,6 +78,7 @@ def test_g_solves_the_normal_equations(horse_rig):
     np.testing.assert_allclose(normal @ factor.handle, w.handle * handle.T, atol=1e-9)
 
 
+@pytest.mark.float64
 def test_rigid_alignment_recovers_a_rotation():
     rng = np.random.default_rng(3)
     p = jnp.asarray(rng.normal(size=(6, 2)))
@@ -91,6 +96,7 @@ def test_rigid_alignment_recovers_a_rotation():
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
 @pytest.mark.parametrize("zeros", [dict(mvc=0, length=0), dict(laplacian=0, length=0),
                                    dict(laplacian=0, mvc=0), dict(laplacian=0)])
+@pytest.mark.float64
 def test_a_single_term_deforms_without_nan(horse, dtype, zeros):
     # Laplacian-only or mean-value-only deformation leaves some vertices free; the
     # tie-break keeps the minimum unique, the rest pose at rest and a drag finite.
@@ -110,6 +116,7 @@ def test_a_single_term_deforms_without_nan(horse, dtype, zeros):
     assert float(info.handle_miss) < 0.05 * diagonal
 
 
+@pytest.mark.float64
 def test_the_tie_break_is_small_where_a_term_is_zero(horse_rig):
     # With the edge lengths on, a zero Laplacian or mean value weight changes the pose
     # by the tie-break alone: its energy, in the user's weights, is within a hair of
@@ -173,6 +180,7 @@ def _residuals_by_hand(rig, local_targets):
     return residuals
 
 
+@pytest.mark.float64
 @pytest.mark.parametrize("factor", ["dense", "sparse"])
 def test_a_new_term_is_one_declaration(horse, factor):
     # Two terms declared as data reach every stage: the reported energy, the fixed-G
@@ -208,6 +216,7 @@ def test_a_new_term_is_one_declaration(horse, factor):
                                    atol=1e-6)
 
 
+@pytest.mark.float64
 def test_with_terms_refuses_a_handle_term_and_a_term_that_pulls_at_rest(horse_rig):
     from mvcjax.advanced import Stencil, Term
 

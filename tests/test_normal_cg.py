@@ -13,10 +13,11 @@ from mvcjax.solvers._normal_cg import GaussNewtonMatrix, conjugate_gradient
 
 from conftest import local_point
 
-# Agreement with references to many digits, and the solvers' internals: in float64.
-pytestmark = pytest.mark.float64
+# Tests that compare with references to many digits, or the solvers' internals, are
+# marked float64; the others run in float32, as users do.
 
 
+@pytest.mark.float64
 def test_conjugate_gradient_solves_a_positive_definite_system():
     rng = np.random.default_rng(0)
     a = rng.normal(size=(30, 30))
@@ -29,6 +30,7 @@ def test_conjugate_gradient_solves_a_positive_definite_system():
     assert 0 < int(steps) <= 500
 
 
+@pytest.mark.float64
 @pytest.mark.parametrize("case", ["stops early", "runs out", "zero curvature"])
 def test_unrolled_and_looped_conjugate_gradients_agree(monkeypatch, case):
     # A short budget runs unrolled, with the stopping test as a mask; a long one loops.
@@ -74,6 +76,7 @@ def test_conjugate_gradient_stops_on_zero_curvature():
 
 @pytest.mark.parametrize("rtol, max_steps", [(1e-13, 200), (1e-3, 12), (0.0, 5)],
                          ids=["looped", "unrolled, stops early", "unrolled, runs out"])
+@pytest.mark.float64
 def test_conjugate_gradient_hands_the_operator_the_unpreconditioned_direction(rtol, max_steps):
     # An operator N - C with preconditioner N^{-1}: given N p for free, it never forms N p,
     # and the iterates are those of the same operator forming N p itself.
@@ -106,6 +109,7 @@ def _normal_less_correction(seed, size=30):
     return normal, correction, jnp.asarray(rng.normal(size=(size,))), rng
 
 
+@pytest.mark.float64
 @pytest.mark.parametrize("unroll", [True, False])
 @pytest.mark.parametrize("max_steps", [1, 2, 5])
 @pytest.mark.parametrize("raised", [False, True])
@@ -142,6 +146,7 @@ def test_deflated_conjugate_gradient_minimises_over_the_vector_and_a_krylov_spac
     assert abs(float(w @ (b - a @ x))) <= 1e-10 * float(jnp.linalg.norm(w) * jnp.linalg.norm(b))
 
 
+@pytest.mark.float64
 def test_deflated_conjugate_gradient_edge_cases():
     normal, correction, b, _ = _normal_less_correction(5)
     a = normal - correction
@@ -194,6 +199,7 @@ def gauss_newton(horse_rig, request):
         problem, rig.factor.normal_operator(), rig.factor.normal_inverse_operator(), y)
 
 
+@pytest.mark.float64
 def test_gauss_newton_gradient_is_the_residuals_transposed(gauss_newton):
     _, _, y, r, linear, matrix = gauss_newton
     (expected,) = jax.linear_transpose(linear, y)(r)
@@ -201,6 +207,7 @@ def test_gauss_newton_gradient_is_the_residuals_transposed(gauss_newton):
                                atol=1e-11 * float(jnp.abs(expected).max()))
 
 
+@pytest.mark.float64
 def test_gauss_newton_matrix_is_the_jacobian_squared(gauss_newton):
     _, _, y, _, linear, matrix = gauss_newton
     x = jax.random.normal(jax.random.key(4), y.shape, y.dtype)
@@ -210,6 +217,7 @@ def test_gauss_newton_matrix_is_the_jacobian_squared(gauss_newton):
                                atol=1e-11 * float(jnp.abs(expected).max()))
 
 
+@pytest.mark.float64
 @pytest.mark.parametrize("damping", [0.0, 0.3])
 def test_gauss_newton_solve_matches_the_dense_step(gauss_newton, damping):
     # Run to a tight tolerance, CG gives the dense (damped) least-squares step; its
@@ -246,6 +254,7 @@ def test_structured_step_options_are_checked():
         mvcjax.advanced.StructuredCG(rtol=1.0)
 
 
+@pytest.mark.float64
 def test_gauss_newton_solve_reports_a_step_it_could_not_take(gauss_newton):
     # With a preconditioner that is not positive definite CG cannot leave zero: a
     # breakdown, not a zero step that the outer solver would take for convergence.

@@ -7,15 +7,18 @@ import mvcjax
 from mvcjax import datasets
 from mvcjax.geometry import _skinning
 
+from conftest import needs_float64
+
 RIGID = mvcjax.advanced.RigidStart()
 
-# Agreement with references to many digits, and the solvers' internals: in float64.
-pytestmark = pytest.mark.float64
+# Tests that compare with references to many digits, or the solvers' internals, are
+# marked float64; the others run in float32, as users do.
 
 METHODS = {"blended": mvcjax.advanced.BlendedMVCSkinning, "mvc": mvcjax.advanced.MVCSkinning,
            "barycentric": mvcjax.advanced.BarycentricSkinning}
 
 
+@pytest.mark.float64
 def test_skinning_weights_are_sound(horse_rig):
     sk = horse_rig.skinning
     assert bool(jnp.all(jnp.isfinite(sk.weights)))
@@ -27,6 +30,7 @@ def test_skinning_weights_are_sound(horse_rig):
     assert float(jnp.max(handle_rows, axis=1).min()) == 1.0
 
 
+@pytest.mark.float64
 def test_dense_skinning_matrix_is_the_same_map(horse_rig):
     pose = horse_rig.control_mesh.vertices + jax.random.normal(
         jax.random.key(2), horse_rig.control_mesh.vertices.shape)
@@ -36,10 +40,14 @@ def test_dense_skinning_matrix_is_the_same_map(horse_rig):
 
 @pytest.fixture(scope="module")
 def skinned_rigs(horse):
-    return {s: mvcjax.Rig.build(horse, datasets.horse_handles(), skinning=METHODS[s]())
+    """The horse rigged with each skinning, in float64 (whichever test builds it first)."""
+    needs_float64("skinned_rigs")
+    return {s: mvcjax.Rig.build(horse, datasets.horse_handles(), skinning=METHODS[s](),
+                                dtype=jnp.float64)
             for s in list(METHODS)}
 
 
+@pytest.mark.float64
 @pytest.mark.parametrize("skinning", list(METHODS))
 def test_every_skinning_is_exact_at_rest_and_interpolates(skinned_rigs, skinning):
     rig = skinned_rigs[skinning]
@@ -55,6 +63,7 @@ def test_every_skinning_is_exact_at_rest_and_interpolates(skinned_rigs, skinning
                                pose[rig.control_mesh.handles], atol=1e-9)
 
 
+@pytest.mark.float64
 def test_blended_skinning_is_smoothest_and_the_default(horse, skinned_rigs):
     measured = {}
     paper = mvcjax.FixedG()
@@ -82,14 +91,17 @@ def test_unknown_skinning_is_explained(horse):
                          control=mvcjax.FullSolve())
 
 
+@pytest.mark.float64
 @pytest.mark.parametrize("name", METHODS)
 def test_objects_and_names_are_the_same_method(skinned_rigs, horse, name):
-    rig = mvcjax.Rig.build(horse, datasets.horse_handles(), skinning=METHODS[name]())
+    rig = mvcjax.Rig.build(horse, datasets.horse_handles(), skinning=METHODS[name](),
+                           dtype=jnp.float64)
     assert rig.skinning.method == METHODS[name]()
     np.testing.assert_array_equal(rig.skinning.indices, skinned_rigs[name].skinning.indices)
     np.testing.assert_array_equal(rig.skinning.weights, skinned_rigs[name].skinning.weights)
 
 
+@pytest.mark.float64
 @pytest.mark.parametrize("name", METHODS)
 def test_weights_at_the_shape_vertices_are_the_rigs(skinned_rigs, name):
     rig = skinned_rigs[name]
@@ -106,6 +118,7 @@ def test_weights_at_the_shape_vertices_are_the_rigs(skinned_rigs, name):
         assert not differ.any(), differ.sum()
 
 
+@pytest.mark.float64
 @pytest.mark.parametrize("name", METHODS)
 def test_weights_at_any_points_have_linear_precision(skinned_rigs, name):
     # Mean value and barycentric coordinates reproduce affine maps exactly: points
@@ -132,6 +145,7 @@ def _in_triangles(p, a, b, c):
                        & (cross(a - c, p - c) >= 0)))
 
 
+@pytest.mark.float64
 def test_weights_at_points_outside_say_so(horse_rig):
     far = np.asarray(horse_rig.control_mesh.vertices).max(axis=0) + 10.0
     with pytest.raises(ValueError, match="1 of the 2 points lie outside the control mesh"):
@@ -140,6 +154,7 @@ def test_weights_at_points_outside_say_so(horse_rig):
         horse_rig.weights_at([[1.0, np.nan]])
 
 
+@pytest.mark.float64
 def test_weights_at_on_a_full_rig_are_barycentric_on_the_shape_mesh(horse):
     full = mvcjax.Rig.build(horse, datasets.horse_handles(), control=mvcjax.FullSolve())
     assert full.skinning.method == mvcjax.advanced.BarycentricSkinning()
@@ -150,6 +165,7 @@ def test_weights_at_on_a_full_rig_are_barycentric_on_the_shape_mesh(horse):
     np.testing.assert_allclose(np.sort(np.asarray(skin.weights), axis=1)[:, -3:], 1 / 3, atol=1e-6)
 
 
+@pytest.mark.float64
 def test_weights_at_carry_points_inside_jit(horse_rig):
     skin = horse_rig.weights_at(np.asarray(horse_rig.handle_positions))
     targets = horse_rig.handle_positions + datasets.horse_drag()
@@ -163,6 +179,7 @@ def test_weights_at_carry_points_inside_jit(horse_rig):
     np.testing.assert_allclose(follow(skin, targets), expected, atol=1e-9)
 
 
+@pytest.mark.float64
 @pytest.mark.parametrize("tile", [1, 3, 8])
 def test_packed_rows_give_back_the_rows_and_the_same_map(tile):
     # Rows sharing an index list share tiles; the packed map is the rows' map.
@@ -183,6 +200,7 @@ def test_packed_rows_give_back_the_rows_and_the_same_map(tile):
                                atol=1e-12)
 
 
+@pytest.mark.float64
 def test_skinning_rows_are_packed_with_little_padding(skinned_rigs):
     for rig in skinned_rigs.values():
         sk = rig.skinning

@@ -15,8 +15,8 @@ from mvcjax import datasets
 
 from conftest import directional_derivatives
 
-# Agreement with references to many digits, and the solvers' internals: in float64.
-pytestmark = pytest.mark.float64
+# Tests that compare with references to many digits, or the solvers' internals, are
+# marked float64; the others run in float32, as users do.
 
 LEAST_SQUARES = [mvcjax.GaussNewton, mvcjax.LevenbergMarquardt, mvcjax.Dogleg]
 
@@ -74,6 +74,7 @@ def test_removed_cg_keywords_say_what_to_write(solver, key):
     ("FoldFree", "mvcjax.FoldFree()"),
     ("newton", "mvcjax.GaussNewton()"),
 ])
+@pytest.mark.float64
 def test_a_solver_named_as_a_string_or_class_is_answered_where_it_lives(stick, spelling, fix):
     with pytest.raises(TypeError, match=rf"write {re.escape(fix)}"):
         stick.deform(stick.handle_positions, solver=spelling)
@@ -101,6 +102,7 @@ def test_degenerate_weights_are_refused(kwargs, message):
         mvcjax.Weights(**kwargs)
 
 
+@pytest.mark.float64
 def test_a_rig_refuses_weights_that_hold_nothing_but_the_handles(stick):
     with pytest.raises(ValueError, match="at least one shape term"):
         datasets.model("stick").rig(weights=mvcjax.Weights(0.0, 0.0, 0.0, arap=None))
@@ -111,6 +113,7 @@ def test_a_rig_refuses_weights_that_hold_nothing_but_the_handles(stick):
 @pytest.mark.parametrize("tiny", [mvcjax.Weights(mvc=1e-34, handle=1e-28, arap=1e-30),
                                   mvcjax.Weights(1e-30, 1e-30, 1e-30, 1e-28, arap=None)],
                          ids=["default", "paper"])
+@pytest.mark.float64
 def test_weights_of_any_overall_scale_solve_alike(stick, stick_targets, tiny):
     # At 1e-30 everywhere optimistix stopped after one step and reported convergence:
     # its absolute tolerance saw residuals scaled by 1e-15.
@@ -124,6 +127,7 @@ def test_weights_of_any_overall_scale_solve_alike(stick, stick_targets, tiny):
         assert float(scaled_info.energy) == pytest.approx(1e-30 * float(info.energy), rel=1e-9)
 
 
+@pytest.mark.float64
 @pytest.mark.parametrize("solver", LEAST_SQUARES, ids=lambda s: s.__name__)
 def test_negative_tolerances_no_longer_fake_convergence(solver, stick, stick_targets):
     # Negative tolerances must not let GaussNewton report convergence after one step.
@@ -134,6 +138,7 @@ def test_negative_tolerances_no_longer_fake_convergence(solver, stick, stick_tar
     assert not bool(info.converged)
 
 
+@pytest.mark.float64
 def test_an_infinite_energy_is_not_converged(stick):
     targets = np.asarray(stick.handle_positions).copy()
     targets[0] = 1e200
@@ -142,6 +147,7 @@ def test_an_infinite_energy_is_not_converged(stick):
         assert not bool(info.converged) or np.isfinite(float(info.energy))
 
 
+@pytest.mark.float64
 def test_gradient_through_a_solve_that_stops_early(stick, stick_targets):
     # jax.grad through FixedG(stop_early=True) failed with JAX's while-loop error.
     solver = mvcjax.FixedG(iterations=20000, rtol=1e-9, stop_early=True)
@@ -250,6 +256,7 @@ def test_float32_shapes_at_the_ends_of_the_size_range_converge(size):
         assert bool(info.converged) and np.isfinite(float(info.energy))
 
 
+@pytest.mark.float64
 def test_stopping_early_leaves_the_primal_unchanged(stick, stick_targets):
     early = mvcjax.FixedG(iterations=5000, rtol=1e-7, stop_early=True)
     vertices, info = stick.solve(stick_targets, early, return_info=True)
@@ -261,6 +268,7 @@ def test_stopping_early_leaves_the_primal_unchanged(stick, stick_targets):
     assert float(info.energy) == float(fixed_info.energy)
 
 
+@pytest.mark.float64
 def test_forward_mode_through_a_solve_that_stops_early(stick, stick_targets):
     # The checkpointed loop that reverse mode needs refuses forward mode; the implicit
     # adjoint, which the docstring names for it, supports both.

@@ -18,8 +18,8 @@ from conftest import directional_derivatives, drag, scipy_minimum
 
 RIGID = mvcjax.advanced.RigidStart()
 
-# Agreement with references to many digits, and the solvers' internals: in float64.
-pytestmark = pytest.mark.float64
+# Tests that compare with references to many digits, or the solvers' internals, are
+# marked float64; the others run in float32, as users do.
 
 TIGHT = {
     # The stopping test bounds the distance to the minimum: 1e-8 of the diagonal.
@@ -80,6 +80,7 @@ def reference(horse_rig):
     return run
 
 
+@pytest.mark.float64
 @pytest.mark.parametrize("handle, offset", AGREEING)
 @pytest.mark.parametrize("name", list(TIGHT))
 def test_solvers_agree_with_scipy(horse_rig, horse, solve, reference, name, handle, offset):
@@ -98,6 +99,7 @@ def test_solvers_agree_with_scipy(horse_rig, horse, solve, reference, name, hand
     assert float(info.energy) == pytest.approx(minimum_energy, rel=1e-9)
 
 
+@pytest.mark.float64
 @pytest.mark.parametrize("handle, offset", AGREEING)
 def test_gauss_newton_and_fixed_g_give_the_same_control_vertices(horse_rig, horse, solve,
                                                                    handle, offset):
@@ -107,6 +109,7 @@ def test_gauss_newton_and_fixed_g_give_the_same_control_vertices(horse_rig, hors
     assert float(jnp.abs(fixed - newton).max()) < 1e-5 * horse.diagonal
 
 
+@pytest.mark.float64
 def test_several_minima_are_each_stationary(horse_rig, solve):
     # Hoof lifted 40 units: from the same start the solvers settle in different minima.
     # Each is a true stationary point of (6); the local-global iteration finds the lowest.
@@ -137,6 +140,7 @@ def test_several_minima_are_each_stationary(horse_rig, solve):
     assert float(jnp.abs(vertices - found["fixed_g"][0]).max()) < 1e-5 * horse_rig.frame.scale
 
 
+@pytest.mark.float64
 @pytest.mark.parametrize("name", list(TIGHT))
 def test_started_near_the_lowest_minimum_every_solver_returns_to_it(horse_rig, solve, name):
     targets = targets_for(horse_rig, 0, [0.0, 40.0])
@@ -147,6 +151,7 @@ def test_started_near_the_lowest_minimum_every_solver_returns_to_it(horse_rig, s
     assert float(jnp.abs(vertices - lowest).max()) < 1e-5 * horse_rig.frame.scale
 
 
+@pytest.mark.float64
 def test_fifteen_iterations_are_not_converged_and_say_so(horse_rig):
     targets = targets_for(horse_rig, 0, [60.0, 0.0])
     _, info = horse_rig.solve(targets, mvcjax.FixedG(), return_info=True)
@@ -155,6 +160,7 @@ def test_fifteen_iterations_are_not_converged_and_say_so(horse_rig):
     assert not bool(info.converged)
 
 
+@pytest.mark.float64
 def test_anderson_needs_far_fewer_iterations(horse_rig, solve):
     targets = targets_for(horse_rig, 0, [60.0, 0.0])
     _, plain = solve("fixed_g", targets)
@@ -162,6 +168,7 @@ def test_anderson_needs_far_fewer_iterations(horse_rig, solve):
     assert int(fast.iterations) * 10 < int(plain.iterations)
 
 
+@pytest.mark.float64
 def test_paper_start_and_rigid_start(horse_rig):
     # The paper starts from the rest pose; under a large turn 15 steps are then far off,
     # while the rigid start is exact.
@@ -176,6 +183,7 @@ def test_paper_start_and_rigid_start(horse_rig):
     assert float(jnp.abs(paper - expected).max()) > 1e-2 * scale
 
 
+@pytest.mark.float64
 def test_solver_errors(horse_rig):
     with pytest.raises(ValueError, match=r"FixedG\(iterations=0\): needs at least 1"):
         mvcjax.FixedG(iterations=0)
@@ -185,6 +193,7 @@ def test_solver_errors(horse_rig):
         horse_rig.solve(horse_rig.handle_positions, init="zero")
 
 
+@pytest.mark.float64
 def test_gradient_through_gauss_newton(horse_rig):
     # Implicit differentiation (optimistix); FixedG's unrolled gradient is in test_rig.
     solver = mvcjax.GaussNewton()
@@ -244,6 +253,7 @@ def stick_gradients():
                                           float(unrolled[1]))
 
 
+@pytest.mark.float64
 def test_unrolled_fixed_g_gradient_matches_finite_differences(stick_gradients):
     _, _, _, fd, unrolled = stick_gradients
     assert unrolled[0] == pytest.approx(float(fd[0]), rel=1e-6)
@@ -262,6 +272,7 @@ IMPLICIT = {
 }
 
 
+@pytest.mark.float64
 @pytest.mark.parametrize("name", list(IMPLICIT))
 def test_implicit_gradients_match_finite_differences_and_the_unrolled_one(stick_gradients,
                                                                           name):
@@ -315,6 +326,7 @@ def test_stop_early_differentiates_in_reverse_mode_either_way(stick_gradients):
     mvcjax.FixedG(), mvcjax.FixedG(anderson=5), mvcjax.GaussNewton(), mvcjax.Dogleg(),
     mvcjax.advanced.JaxoptLevenbergMarquardt(),
 ], ids=lambda s: type(s).__name__ + ("_anderson" if getattr(s, "anderson", 0) else ""))
+@pytest.mark.float64
 def test_energy_history_ends_where_the_solve_does(horse_rig, solver):
     targets = targets_for(horse_rig, 0, [60.0, 0.0])
     steps = 12
@@ -328,6 +340,7 @@ def test_energy_history_ends_where_the_solve_does(horse_rig, solver):
     assert np.all(np.diff(np.asarray(history)) <= 1e-12 * float(history[0]))
 
 
+@pytest.mark.float64
 def test_anderson_reaches_an_energy_gap_of_1e6_in_a_tenth_of_the_steps(horse):
     # On the default energy (on the paper's, at this drag, plain steps settle at another
     # stationary point, above the one Anderson's reach).
@@ -346,6 +359,7 @@ def test_anderson_reaches_an_energy_gap_of_1e6_in_a_tenth_of_the_steps(horse):
     assert 10 * steps_to_gap(fast) <= steps_to_gap(plain)
 
 
+@pytest.mark.float64
 @pytest.mark.parametrize("name", ["GaussNewton", "LevenbergMarquardt"])
 def test_deflating_by_the_previous_step_needs_far_fewer_steps(horse_rig, name):
     # Four CG iterations a step leave out the directions where the rotations make the
@@ -368,6 +382,7 @@ def test_deflating_by_the_previous_step_needs_far_fewer_steps(horse_rig, name):
     assert steps_to_gap(deflated) <= 0.6 * steps_to_gap(plain)
 
 
+@pytest.mark.float64
 def test_energy_history_errors(horse_rig):
     with pytest.raises(ValueError, match="steps must be a whole number >= 1"):
         horse_rig.energy_history(horse_rig.handle_positions, mvcjax.FixedG(), 0)
@@ -378,6 +393,7 @@ def test_energy_history_errors(horse_rig):
 @pytest.mark.parametrize("solver", [mvcjax.FixedG(stop_early=True), mvcjax.GaussNewton(),
                                     mvcjax.advanced.JaxoptGaussNewton()],
                          ids=lambda s: type(s).__name__)
+@pytest.mark.float64
 def test_fixed_steps_runs_exactly_that_many(horse_rig, solver):
     targets = targets_for(horse_rig, 0, [20.0, 0.0])
     _, info = horse_rig.solve(targets, solver.fixed_steps(7), return_info=True)
@@ -386,6 +402,7 @@ def test_fixed_steps_runs_exactly_that_many(horse_rig, solver):
         solver.fixed_steps(0)
 
 
+@pytest.mark.float64
 def test_gradient_through_jaxopt_gauss_newton_where_it_converges():
     # jaxopt's plain Gauss-Newton does not converge on the half drag of the other
     # gradient tests; on a quarter drag it does (27 steps), and its implicit gradient
@@ -410,6 +427,7 @@ def test_gradient_through_jaxopt_gauss_newton_where_it_converges():
     assert along == pytest.approx(float(jnp.sum(grad(fixed, targets) * direction)), rel=1e-6)
 
 
+@pytest.mark.float64
 def test_a_solver_without_a_history_says_so(horse_rig):
     class Plain(mvcjax.advanced.AbstractSolver):
         def solve(self, energy, factor, targets, init):
@@ -425,6 +443,7 @@ def test_a_solver_without_a_history_says_so(horse_rig):
     mvcjax.GaussNewton(), mvcjax.Dogleg(), mvcjax.LevenbergMarquardt(),
     mvcjax.Dogleg(linear_solver=lx.Cholesky()),
 ], ids=["gauss_newton", "dogleg", "levenberg_marquardt", "dogleg_cholesky"])
+@pytest.mark.float64
 def test_optimistix_solvers_in_float32(horse, horse_rig, solve, solver):
     # Single precision with jax_enable_x64 on (the suite's setting): optimistix's dogleg
     # made its norms float64 there and failed; every solver converges to float32's
@@ -442,6 +461,7 @@ def test_optimistix_solvers_in_float32(horse, horse_rig, solve, solver):
     assert float(info.energy) == pytest.approx(float(expected_info.energy), rel=2e-5)
 
 
+@pytest.mark.float64
 def test_structured_solver_over_frames_matches_single_frames(horse_rig):
     # vmapped (deform_frames): the descents' arrays batch with the targets.
     solver = mvcjax.GaussNewton()
