@@ -4,12 +4,17 @@ process, with and without JAX's persistent compilation cache.
 Cases: the default `rig.deform` of the built-in horse; each solver on it; `FoldFree` on
 the character with a bone per arm, its right arm turned 110 degrees (about 3k shape
 vertices); a rig of a new size after the first (its first frame); a renderer's first
-picture; a layered character's first pose. Each is timed in a new Python process, so
+picture; a layered character's first pose. Then what a newcomer runs, whole, from the
+start of its Python process to its end: the README's example (its Python blocks, in
+order, in one script) and the README's `mvcjax demo` command; and, without `--quick`,
+the README's first command as written (a fresh virtual environment, `pip install`, the
+demo). Each is timed in a new Python process, so
 nothing compiled by another case helps it: "cold" with no persistent cache, "cached" in a
 second process that finds what the first wrote to a persistent cache directory
 (`jax_compilation_cache_dir`, see the guide). The building of the rig is outside the
 timed region; the first call, compiling included, is inside. Targets (seconds, on the
-2-core CPU that CI runs on): `FoldFree` 3, the other solvers 1.5, a renderer 1.
+2-core CPU that CI runs on): `FoldFree` 3, the other solvers 1.5, a renderer 1; the
+README's example 10, its demo 10, its first command (install included) 40.
 
     python benchmarks/compile.py [--quick] [--json benchmarks/results/compile-cpu-2core.json]
 """
@@ -18,6 +23,7 @@ from __future__ import annotations
 
 import json
 import os
+import pathlib
 import subprocess
 import sys
 import tempfile
@@ -25,12 +31,16 @@ import time
 
 from _timing import quick_and_json, write_results
 
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+EXAMPLE, DEMO, FIRST_COMMAND = ("README example, whole", "README's mvcjax demo, whole",
+                                "README's first command, install included")
 TARGETS_S = {"FoldFree": 3.0, "GaussNewton": 1.5, "Dogleg": 1.5, "LevenbergMarquardt": 1.5,
-             "FixedG(anderson=5, stop_early=True)": 1.5, "renderer": 1.0}
+             "FixedG(anderson=5, stop_early=True)": 1.5, "renderer": 1.0, EXAMPLE: 10.0,
+             DEMO: 10.0, FIRST_COMMAND: 40.0}
 CASES = ("deform", "GaussNewton", "Dogleg", "LevenbergMarquardt",
          "FixedG(anderson=5, stop_early=True)", "FoldFree", "new rig size", "renderer",
-         "character")
-QUICK_CASES = ("deform", "GaussNewton", "FoldFree")
+         "character", EXAMPLE, DEMO, FIRST_COMMAND)
+QUICK_CASES = ("deform", "GaussNewton", "FoldFree", EXAMPLE, DEMO)
 
 
 def _horse():
@@ -88,6 +98,32 @@ def child(case: str) -> None:
     print(json.dumps({"first_s": time.perf_counter() - start}))
 
 
+def readme_lines(kind: str) -> list[str]:
+    """The README's `kind` fenced blocks ("python", "bash"), each as its lines."""
+    blocks, block = [], None
+    for line in (ROOT / "README.md").read_text().splitlines():
+        if block is None and line.strip() == f"```{kind}":
+            block = []
+        elif block is not None and line.strip() == "```":
+            blocks.append(block)
+            block = None
+        elif block is not None:
+            block.append(line)
+    return blocks
+
+
+def whole_command(case: str, folder: str) -> list[str]:
+    """The command line of a whole-command case, run in the empty `folder`."""
+    if case == EXAMPLE:
+        script = pathlib.Path(folder, "example.py")
+        script.write_text("\n\n".join("\n".join(b) for b in readme_lines("python")))
+        return [sys.executable, str(script)]
+    first = readme_lines("bash")[0][0]  # the README's first command, as written
+    if case == DEMO:
+        return [sys.executable, "-m", "mvcjax", *first.split("mvcjax ", 1)[1].split()]
+    return ["bash", "-c", first.replace("pip install .", f"pip install -q {ROOT}")]
+
+
 def run_case(case: str, cache_dir: str | None) -> float:
     env = dict(os.environ)
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
@@ -95,6 +131,12 @@ def run_case(case: str, cache_dir: str | None) -> float:
         env.update(JAX_COMPILATION_CACHE_DIR=cache_dir,
                    JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
                    JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0")
+    if case in (EXAMPLE, DEMO, FIRST_COMMAND):
+        with tempfile.TemporaryDirectory() as folder:
+            command = whole_command(case, folder)
+            start = time.perf_counter()
+            subprocess.run(command, env=env, cwd=folder, check=True, capture_output=True)
+            return time.perf_counter() - start
     out = subprocess.run([sys.executable, __file__, "--child", case], env=env, check=True,
                          capture_output=True, text=True).stdout
     return json.loads(out.strip().splitlines()[-1])["first_s"]
@@ -104,6 +146,11 @@ def measure(cases) -> list[dict]:
     rows = []
     for case in cases:
         cold = run_case(case, None)
+        if case == FIRST_COMMAND:  # a fresh environment each time: no cache to find
+            rows.append({"case": case, "cold_s": cold, "cached_s": None,
+                         "target_s": TARGETS_S.get(case)})
+            print(rows[-1], flush=True)
+            continue
         with tempfile.TemporaryDirectory() as cache:
             run_case(case, cache)  # fills the cache
             cached = run_case(case, cache)
@@ -119,7 +166,8 @@ def format_table(data: dict) -> str:
     for r in data["rows"]:
         target = "" if r["target_s"] is None else (
             f"{r['target_s']:g} ({'met' if r['cold_s'] <= r['target_s'] else 'missed'})")
-        lines.append(f"| {r['case']} | {r['cold_s']:.2f} | {r['cached_s']:.2f} | {target} |")
+        cached = "-" if r["cached_s"] is None else f"{r['cached_s']:.2f}"
+        lines.append(f"| {r['case']} | {r['cold_s']:.2f} | {cached} | {target} |")
     return "\n".join(lines)
 
 
