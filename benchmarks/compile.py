@@ -98,7 +98,7 @@ def child(case: str) -> None:
     print(json.dumps({"first_s": time.perf_counter() - start}))
 
 
-def readme_lines(kind: str) -> list[str]:
+def readme_blocks(kind: str) -> list[str]:
     """The README's `kind` fenced blocks ("python", "bash"), each as its lines."""
     blocks, block = [], None
     for line in (ROOT / "README.md").read_text().splitlines():
@@ -116,9 +116,9 @@ def whole_command(case: str, folder: str) -> list[str]:
     """The command line of a whole-command case, run in the empty `folder`."""
     if case == EXAMPLE:
         script = pathlib.Path(folder, "example.py")
-        script.write_text("\n\n".join("\n".join(b) for b in readme_lines("python")))
+        script.write_text("\n\n".join("\n".join(b) for b in readme_blocks("python")))
         return [sys.executable, str(script)]
-    first = readme_lines("bash")[0][0]  # the README's first command, as written
+    first = readme_blocks("bash")[0][0]  # the README's first command, as written
     if case == DEMO:
         return [sys.executable, "-m", "mvcjax", *first.split("mvcjax ", 1)[1].split()]
     return ["bash", "-c", first.replace("pip install .", f"pip install -q {ROOT}")]

@@ -13,6 +13,9 @@ import mvcjax
 
 # Tests that compare with references to many digits, or the solvers' internals, are
 # marked float64; the others run in float32, as users do.
+# Two float32 computations of the horse's vertices (coordinates up to 480, rounded by up
+# to 3e-5) agree to a few roundings.
+ROUNDING = 1e-3
 
 
 def some_frames(rig, count, seed=0):
@@ -26,7 +29,7 @@ def test_frames_match_single_frames(horse_rig32):
     together = mvcjax.deform_frames(horse_rig32, targets, chunk=4)  # chunks that do not divide
     assert together.shape == (10, *horse_rig32.shape_mesh.vertices.shape)
     for k in range(10):
-        np.testing.assert_allclose(together[k], horse_rig32.deform(targets[k]), atol=1e-3)
+        np.testing.assert_allclose(together[k], horse_rig32.deform(targets[k]), atol=ROUNDING)
 
 
 @pytest.mark.parametrize("solver", [mvcjax.FixedG(iterations=30),

@@ -2,6 +2,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import shapely
+from scipy.spatial import Voronoi
 
 import mvcjax
 from mvcjax.geometry._meshing import (
@@ -29,8 +30,6 @@ def control_region(rig):
 def test_voronoi_ridges_agree_with_qhull():
     """The Voronoi diagram from Triangle's Delaunay triangulation against scipy's (Qhull):
     the same ridges between the same points, ending at the same vertices."""
-    from scipy.spatial import Voronoi
-
     pts = np.random.default_rng(3).random((400, 2)) * 7.0 - 3.0
     centres, ridge_points, ridge_vertices = voronoi_ridges(pts)
     vor = Voronoi(pts)

@@ -162,9 +162,9 @@ MANY_CUT_PIECES = 5_000
 
 
 def voronoi_ridges(points: Float[np.ndarray, "n 2"]):
-    """The Voronoi diagram of `points`, as the dual of their Delaunay triangulation
-    (Shewchuk's Triangle: exact predicates, and an order of magnitude faster than Qhull on
-    the cocircular samples of parallel sides).
+    """The Voronoi diagram of `points`, as the dual of their Delaunay triangulation by
+    Shewchuk's Triangle (exact predicates, at ease with the cocircular samples of
+    parallel sides).
 
     Returns:
         the Voronoi vertices (the triangles' circumcentres), the pair of points each ridge
