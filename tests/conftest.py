@@ -4,6 +4,7 @@ solvers' internals) is marked `@pytest.mark.float64` (or its module is), and run
 `jax_enable_x64` on. Turning it on is the tests' choice, never the library's.
 """
 
+import collections
 import contextlib
 import os
 import re
@@ -13,6 +14,18 @@ import re
 # and a scipy reference solve beside a notebook slows down many times over.
 for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_variable, "1")
+
+# A program is compiled once per test run, not once per worker and per subprocess: the
+# workers, the notebooks' kernels and the command lines the tests start share JAX's
+# persistent compilation cache (set through the environment, so that the subprocesses
+# inherit it; a size limit turns on its file lock, since several processes write at
+# once). `MVCJAX_TEST_JAX_CACHE=off` runs the suite without it, cold.
+_CACHE = os.environ.get("MVCJAX_TEST_JAX_CACHE", os.path.join(
+    os.path.dirname(os.path.dirname(os.path.abspath(__file__))), ".cache", "jax-tests"))
+if _CACHE != "off":
+    os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", _CACHE)
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+    os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(4 << 30))
 
 import jax  # noqa: E402
 from hypothesis import settings  # noqa: E402
@@ -43,10 +56,37 @@ def pytest_runtest_protocol(item, nextitem):
     # Set globally, not by `jax.enable_x64`'s context, which holds for this thread only:
     # host callbacks run on XLA's threads.
     jax.config.update("jax_enable_x64", item.get_closest_marker("float64") is not None)
+    item.compiled_before = dict(_COMPILED)
     try:
         yield
     finally:
         jax.config.update("jax_enable_x64", False)
+
+
+# What each test compiles (XLA's compiles, not found in the persistent cache, and JAX's
+# tracing), counted in its setup and call and sent with its report, even from an xdist
+# worker: the run ends with the tests that compile the most.
+_COMPILE_EVENTS = {"/jax/core/compile/backend_compile_duration": "compile",
+                   "/jax/core/compile/jaxpr_trace_duration": "trace"}
+_COMPILED = collections.Counter()
+
+
+def _count_compiles(event, seconds, **_):
+    if event in _COMPILE_EVENTS:
+        _COMPILED[_COMPILE_EVENTS[event] + "_s"] += seconds
+        _COMPILED[_COMPILE_EVENTS[event] + "s"] += 1
+
+
+jax.monitoring.register_event_duration_secs_listener(_count_compiles)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    if call.when == "call" and hasattr(item, "compiled_before"):
+        spent = _COMPILED - collections.Counter(item.compiled_before)
+        item.user_properties.append(("compiled", {k: spent[k] for k in
+                                                  ("compiles", "compile_s", "trace_s")}))
+    yield
 
 
 @contextlib.contextmanager
@@ -229,3 +269,15 @@ def pytest_terminal_summary(terminalreporter):
         wide = sum("float64" in report.keywords for report in ran)
         terminalreporter.write_line(f"float64: {wide} of {len(ran)} tests run "
                                     f"({wide / len(ran):.0%})")
+        compiled = sorted(((dict(report.user_properties).get("compiled", {}), report.nodeid)
+                           for report in ran), key=lambda c: -c[0].get("compile_s", 0.0))
+        total = collections.Counter()
+        for counts, _ in compiled:
+            total.update(counts)
+        terminalreporter.write_line(
+            f"compiled: {total['compiles']} XLA programs in {total['compile_s']:.0f} s, "
+            f"traced in {total['trace_s']:.0f} s; the most:")
+        for counts, nodeid in compiled[:10]:
+            terminalreporter.write_line(
+                f"  {counts.get('compile_s', 0.0):6.1f} s {counts.get('compiles', 0):4d} "
+                f"programs (tracing {counts.get('trace_s', 0.0):5.1f} s)  {nodeid}")
