@@ -227,8 +227,9 @@ def test_a_stack_padded_like_another_reuses_its_program():
     pictures = draw(like, out)
     assert draw._cache_size() == 1
     for i, (rig, renderer) in enumerate(zip(batch, renderers)):
+        # To float32 rounding of pixel values (see test_render.ROUNDING).
         np.testing.assert_allclose(pictures[i], renderer(out[i, :rig.shape_mesh.vertices.shape[0]]),
-                                   atol=1e-6)
+                                   atol=5e-5)
     with pytest.raises(ValueError, match="do not fit"):
         mvcjax.Renderer.stack([mvcjax.Renderer.build(r, size=(24, 24)) for r in rigs],
                               like=mvcjax.Renderer.stack(renderers[:1]))

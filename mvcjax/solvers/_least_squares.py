@@ -194,13 +194,31 @@ class ScaledProblem(eqx.Module):
         weights = self.energy.weights
         return jnp.sum(r * r) * self.energy.scale**2 * weights.largest() / NORMAL_WEIGHT
 
-    def fixed_g_distance(self, y: Float[Array, "2 n"], inverse) -> Float[Array, ""]:
-        """How far `y` is from the minimum, estimated by the largest coordinate of the
-        fixed-G step `N^{-1} J^T r` there (`inverse`: the factor's `N^{-1}`), in scaled
-        coordinates: zero at a minimum, and small only near one, though it underestimates
-        where the energy is flatter than `N` (a valley that a tie-broken weight holds)."""
-        r, pullback = jax.vjp(self.residuals, y)
-        return jnp.max(jnp.abs(inverse.mv(pullback(r)[0])))
+    def fixed_g_distance(self, y: Float[Array, "2 n"], inverse, tol: float
+                         ) -> Float[Array, ""]:
+        """How far `y` is from the minimum, in scaled coordinates, estimated from three
+        fixed-G steps `N^{-1} J^T r` from it (`inverse`: the factor's `N^{-1}`).
+
+        One step alone underestimates where the energy is flatter than `N` (a valley that
+        a tie-broken weight holds): there the steps shrink by a rate near 1, and the
+        minimum is as far as all the steps still to come. So the estimate is the first
+        step plus the second over one less the rate at which the third shrank from it
+        (infinite where it did not shrink), the largest coordinate of each. Where the
+        second step is below the tolerance `tol` the rate is rounding noise (the steps
+        of a solve at float32's or float64's floor keep their size): the first step is
+        the estimate.
+        """
+        def step(y):
+            r, pullback = jax.vjp(self.residuals, y)
+            return inverse.mv(pullback(r)[0])
+
+        first = step(y)
+        second = step(y - first)
+        third = step(y - first - second)
+        d1, d2, d3 = (jnp.max(jnp.abs(s)) for s in (first, second, third))
+        rate = d3 / jnp.maximum(d2, jnp.finfo(d2.dtype).tiny)
+        still_to_come = jnp.where(rate < 1, d2 / jnp.maximum(1 - rate, 0), jnp.inf)
+        return d1 + jnp.where(d2 <= tol, 0.0, still_to_come)
 
     def result(self, y: Float[Array, "2 n"], converged, iterations
                ) -> tuple[Float[Array, "n 2"], SolveInfo]:

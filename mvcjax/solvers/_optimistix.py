@@ -123,7 +123,8 @@ class _OptimistixLeastSquares(AbstractSolver):
         tol = self._tolerances(init.dtype)
         near = problem.fixed_g_distance(
             jax.lax.stop_gradient(sol.value),
-            jax.lax.stop_gradient(factor).normal_inverse_operator()) <= NEAR_MINIMUM * max(tol)
+            jax.lax.stop_gradient(factor).normal_inverse_operator(), max(tol)
+        ) <= NEAR_MINIMUM * max(tol)
         return problem.result(sol.value, (sol.result == optx.RESULTS.successful) & near,
                               sol.stats["num_steps"])
 
