@@ -164,8 +164,8 @@ def format_table(data: dict) -> str:
 
 
 def main(argv=None) -> int:
-    args = quick_and_json(__doc__, "30 rigs instead of 1,000", argv)
-    count = 30 if args.quick else 1000
+    args = quick_and_json(__doc__, "12 rigs instead of 1,000", argv)
+    count = 12 if args.quick else 1000
     start = time.perf_counter()
     both = measure_both(count)
     rows = [{"way": way, **row} for way, (way_rows, _) in both.items() for row in way_rows]

@@ -208,7 +208,7 @@ def format_table(data: dict) -> str:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="6 glyphs x 16 frames")
+    parser.add_argument("--quick", action="store_true", help="3 glyphs x 8 frames")
     parser.add_argument("--glyphs", type=int, default=100)
     parser.add_argument("--frames", type=int, default=64)
     parser.add_argument("--vertices", type=int, default=1500,
@@ -216,7 +216,7 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--json", help="write the results to this JSON file")
     args = parser.parse_args(argv)
-    glyphs, frames = (6, 16) if args.quick else (args.glyphs, args.frames)
+    glyphs, frames = (3, 8) if args.quick else (args.glyphs, args.frames)
     start = time.perf_counter()
     row = measure(glyphs, frames, args.vertices, 1 if args.quick else args.repeats)
     print(row)

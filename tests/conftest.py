@@ -242,6 +242,18 @@ SLOW = [
     # batch of rigs under vmap (single rigs under vmap stay).
     "tests/test_solvers.py::test_solvers_agree_with_scipy[jaxopt_*-0-offset0]",
     "tests/test_batching.py::test_a_batch_of_rigs_falls_back_to_jax_batching",
+    # The longest of the default run, each with a lighter sibling kept there: a character
+    # warm-started by FoldFree frame after frame (a rig's stays, in test_animation), and
+    # dragged fold-free in interact (a rig's stays); a laddered rig under FoldFree with a
+    # bone (with points stays); the guide run as written (the README's stays); the memory
+    # of sixteen rigs of new sizes (that rigs of one size share programs stays).
+    "tests/test_character.py::test_warm_started_frames_start_each_from_the_pose_before",
+    "tests/test_character.py::test_interact_poses_either_from_the_pose_before_with_fold_free"
+    "[character]",
+    "tests/test_ladder.py::test_a_laddered_rig_holds_and_returns_what_a_plain_rig_does"
+    "[bone-FoldFree]",
+    "tests/test_docs.py::test_the_page_runs_as_written[docs/guide.md]",
+    "tests/test_programs.py::test_rigs_of_new_sizes_keep_no_programs_and_leave_the_users_compiled",
     # Fitting to a picture in float32: a long compilation of its own; the default
     # suite fits in float64.
     "tests/test_fit.py::test_textured_fit_recovers_the_pose_in_float32",
