@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import argparse
+import pathlib
 import sys
 import time
 
@@ -230,11 +231,35 @@ def _dataset(args) -> int:
     return 0
 
 
+def _animate_files_problem(files: list[str]) -> str | None:
+    """What is wrong with `mvcjax animate`'s files, before anything is read or rigged
+    (None where nothing is)."""
+    if len(files) not in (2, 4):
+        return ("give SCENE.yaml OUT, or CHARACTER MOTION.yaml RETARGET.yaml OUT "
+                "(AnimatedDrawings' files).")
+    *inputs, out = map(pathlib.Path, files)
+    for k, path in enumerate(inputs):
+        what = ("a scene .yaml" if len(inputs) == 1 else
+                "a character folder or its char_cfg.yaml" if k == 0 else
+                ("a motion" if k == 1 else "a retarget") + " config .yaml")
+        if not path.exists():
+            return f"{path}: no such file or folder; give {what}."
+        if not (k == 0 and len(inputs) == 3 and path.is_dir()) and \
+                path.suffix.lower() not in (".yaml", ".yml"):
+            return f"{path}: not {what}; give {what} here."
+    if out.suffix and out.suffix.lower() not in export.ANIMATION_SUFFIXES:
+        return (f"{out}: mvcjax cannot write {out.suffix!r} animations; give a path ending "
+                f"in {', '.join(export.ANIMATION_SUFFIXES)}, or one without a suffix for a "
+                "folder of PNG frames.")
+    return None
+
+
 def _animate(args) -> int:
     files = args.files
-    if len(files) not in (2, 4):
-        raise SystemExit("mvcjax animate: give SCENE.yaml OUT, or CHARACTER MOTION.yaml "
-                         "RETARGET.yaml OUT (AnimatedDrawings' files).")
+    problem = _animate_files_problem(files)
+    if problem is not None:
+        print(f"mvcjax animate: {problem}", file=sys.stderr)
+        return 2
     _say(f"mvcjax animate: {' '.join(files[:-1])} -> {files[-1]}")
     t0 = time.perf_counter()
     try:

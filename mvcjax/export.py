@@ -35,6 +35,7 @@ from .geometry import (
 )
 
 __all__ = [
+    "ANIMATION_SUFFIXES",
     "outline_rings",
     "texture_uv",
     "to_uint8",
@@ -47,6 +48,8 @@ __all__ = [
 _ANIMATION_FORMATS = {".gif": "GIF", ".png": "PNG", ".apng": "PNG", ".webp": "WEBP",
                       ".mp4": "MP4"}
 _IMAGE_FORMATS = {".png": "PNG", ".webp": "WEBP", ".jpg": "JPEG", ".jpeg": "JPEG"}
+# The suffixes `write_animation` writes (any case).
+ANIMATION_SUFFIXES = tuple(_ANIMATION_FORMATS)
 
 # The GIF palette is computed from this many frames spread over the animation, and from
 # at most this many of their opaque pixels: enough for the colours of a deforming

@@ -247,6 +247,27 @@ def test_animate_command_writes_the_gif_and_reports(tmp_path):
         assert gif.n_frames == 12 and max(gif.size) == 80
 
 
+@pytest.mark.parametrize("files, said", [
+    (lambda tmp: [CHARACTER / "texture.png", MOTION, RETARGET, tmp / "out.gif"],
+     "texture.png: not a character folder or its char_cfg.yaml"),
+    (lambda tmp: [CHARACTER, tmp / "nowhere.yaml", RETARGET, tmp / "out.gif"],
+     "nowhere.yaml: no such file or folder; give a motion config .yaml"),
+    (lambda tmp: [CHARACTER, MOTION, RETARGET, tmp / "out.xyz"],
+     "cannot write '.xyz' animations; give a path ending in .gif"),
+    (lambda tmp: [MOTION, RETARGET, tmp / "out.gif"], "give SCENE.yaml OUT"),
+], ids=["a-picture-for-a-character", "a-missing-config", "an-unknown-suffix", "three-files"])
+def test_animate_command_refuses_wrong_files_before_reading_any(files, said, tmp_path, capsys):
+    # Checked before anything is read, rigged or compiled: nothing is written, and the
+    # message names the file and what to give instead.
+    from mvcjax.__main__ import main
+
+    files = files(tmp_path)
+    assert main(["animate", *map(str, files)]) == 2
+    error = capsys.readouterr().err
+    assert error.startswith("mvcjax animate: ") and said in error
+    assert not files[-1].exists()
+
+
 def test_animate_command_refuses_a_truncated_clip_and_writes_nothing(tmp_path):
     clip = tmp_path / "cut.bvh"
     clip.write_text(BVH.read_text()[:-5000])
