@@ -4,9 +4,11 @@ cannot rot: what CI runs. Their numbers are printed (and written as JSON), never
 One process shares what the benchmarks have in common: JAX imported once, the built-in
 rigs and their programs compiled once. So a quick run's first-call times are not a
 user's (`compile.py` times those, each in a fresh process of its own); each benchmark's
-own wall time is printed after it, and the whole as a table at the end.
+own wall time is printed after it, and the whole as a table at the end. `--jobs 2` (CI)
+deals the benchmarks to two such processes that run at once, one a core: their times
+then share the machine, and what each prints comes after it ends.
 
-    python benchmarks/quick.py [--out DIR] [--only NAME ...]
+    python benchmarks/quick.py [--out DIR] [--only NAME ...] [--jobs N]
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import subprocess
 import sys
 import time
 
@@ -63,16 +66,35 @@ def main(argv=None) -> int:
                         help="the folder for each benchmark's JSON and figures")
     parser.add_argument("--only", nargs="+", choices=[name for name, _ in QUICK],
                         help="these benchmarks only")
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="deal the benchmarks to this many processes run at once")
     args = parser.parse_args(argv)
     os.makedirs(os.path.join(args.out, "figures"), exist_ok=True)
+    names = [name for name, _ in QUICK if not args.only or name in args.only]
+    others = [dealt(names[k::args.jobs], k, args.out) for k in range(1, args.jobs)]
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     seconds = {name: run(name, quick_args, args.out) for name, quick_args in QUICK
-               if not args.only or name in args.only}
+               if name in names[::args.jobs]}
     print("\n| quick benchmark | wall (s) |\n|---|---|")
     for name, s in seconds.items():
         print(f"| {name} | {s:.1f} |")
     print(f"| all | {sum(seconds.values()):.1f} |", flush=True)
+    for process, log in others:
+        status = process.wait()
+        with open(log) as f:
+            print(f"\n=== {log}\n{f.read()}", flush=True)
+        if status:
+            raise SystemExit(f"benchmarks/quick.py --only ... exited with {status}; see {log}")
     return 0
+
+
+def dealt(names: list[str], k: int, out: str) -> tuple[subprocess.Popen, str]:
+    """Benchmarks `names` started in another process; it and its log file."""
+    log = os.path.join(out, f"quick-{k}.log")
+    with open(log, "w") as f:
+        process = subprocess.Popen([sys.executable, os.path.abspath(__file__), "--out", out,
+                                    "--only", *names], stdout=f, stderr=subprocess.STDOUT)
+    return process, log
 
 
 if __name__ == "__main__":
