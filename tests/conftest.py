@@ -18,14 +18,15 @@ for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 # A program is compiled once per test run, not once per worker and per subprocess: the
 # workers, the notebooks' kernels and the command lines the tests start share JAX's
 # persistent compilation cache (set through the environment, so that the subprocesses
-# inherit it; a size limit turns on its file lock, since several processes write at
-# once). `MVCJAX_TEST_JAX_CACHE=off` runs the suite without it, cold.
+# inherit it). No size limit: with one, JAX locks the cache and scans every entry on
+# each write, quadratic in the thousands of small programs a run writes; an entry read
+# while another process writes it is a warning and a compile, not an error.
+# `MVCJAX_TEST_JAX_CACHE=off` runs the suite without it, cold.
 _CACHE = os.environ.get("MVCJAX_TEST_JAX_CACHE", os.path.join(
     os.path.dirname(os.path.dirname(os.path.abspath(__file__))), ".cache", "jax-tests"))
 if _CACHE != "off":
     os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", _CACHE)
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
-    os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(4 << 30))
 
 import jax  # noqa: E402
 from hypothesis import settings  # noqa: E402
