@@ -20,18 +20,20 @@ import subprocess
 import sys
 import time
 
-# (script, its quick arguments): the JSON goes to `<out>/<script>.json`.
+# (script, its quick arguments): the JSON goes to `<out>/<script>.json`. The smallest
+# runs that still take every path: one mesh size where a quick run has two, the allocator
+# that keeps freed memory (a second process) in frames.py only.
 QUICK = (
     ("deform", ["--quick", "--sizes", "1500", "--repeats", "10"]),
     ("solvers", ["--quick", "--figures", "{out}/figures"]),
     ("frames", ["--quick"]),
     ("animation", ["--quick"]),
     ("compile", ["--quick"]),
-    ("throughput", ["--quick"]),
+    ("throughput", ["--quick", "--sizes", "1500", "--allocator", "default"]),
     ("vmap_rules", ["--quick"]),
     ("interact", ["--quick"]),
     ("live", ["--quick"]),
-    ("render", ["--quick", "--baseline", "HEAD"]),
+    ("render", ["--quick", "--sizes", "256"]),
     ("folds", ["--quick"]),
     ("robustness", ["--quick"]),
     ("stack", ["--quick"]),

@@ -143,7 +143,7 @@ def case(group, quick=False, minutes=1.0):
     return register
 
 
-@case("placement", quick=True)
+@case("placement")
 def star_at_origin():
     return check_rig(star_rig())
 
@@ -203,7 +203,7 @@ def random_star_diagonal_0_08_at_minus_300():
     return check_rig(build(outer, [[0.1, -300], [0.105, -300]], dtype=jnp.float64))
 
 
-@case("placement", quick=True)
+@case("placement")
 def unit_square_at_1e5_float64():
     x64()
     import jax.numpy as jnp
@@ -236,7 +236,7 @@ def star_scaled_1e20():
     return check_rig(build(star(radius=1e20), [[0, 0], [4e19, 1e19]]))
 
 
-@case("meshing", quick=True)
+@case("meshing")
 def finer_spacing_gives_more_vertices():
     counts = [star_rig(shape_spacing=s).shape_mesh.vertices.shape[0] for s in (0.025, 0.0125)]
     if counts[1] <= counts[0]:
@@ -399,7 +399,7 @@ def component_float():
     raise Wrong("accepted component=1.5")
 
 
-@case("masks", quick=True)
+@case("masks")
 def one_pixel_line_mask():
     import mvcjax
 
@@ -592,7 +592,7 @@ def weights_handle_1e30():
     return converged_right(rig, rig.handle_positions + 0.2, mvcjax.GaussNewton())
 
 
-@case("weights", quick=True)
+@case("weights")
 def weights_all_1e_30():
     x64()
     import jax.numpy as jnp
@@ -632,7 +632,7 @@ def complex_targets():
     raise Wrong("accepted complex targets")
 
 
-@case("targets", quick=True)
+@case("targets")
 def targets_closed_over_in_jit():
     import jax
 
@@ -735,7 +735,7 @@ def built_within(seconds, outer, handles):
     return f"built in {took:.1f} s; " + check_rig(rig)
 
 
-@case("thin shapes", quick=True)
+@case("thin shapes")
 def comb_of_40_points_with_0_001_slots():
     np = _np()
     outer = [(0, 1), (0, -1)]

@@ -9,14 +9,26 @@ import pathlib
 import sys
 import time
 
-import jax
+import lazy_loader
 import numpy as np
 
 import mvcjax
 
-from . import datasets, export, generate, motion, plot
-from .generate import PoseLimits
-from .solvers import DEFAULT_SOLVER
+# Loaded on first use, so that `--help` and a refused command answer without JAX.
+jax = lazy_loader.load("jax")
+plot = lazy_loader.load("mvcjax.plot", suppress_warning=True)
+solvers = lazy_loader.load("mvcjax.solvers", suppress_warning=True)
+
+
+# mvcjax.generate.PoseLimits' numbers, each an option of `mvcjax dataset`.
+LIMITS = {
+    "offset": "the largest distance a handle moves, a fraction of the shape's size",
+    "spread": "the distance over which handles move alike, a fraction of the shape's size",
+    "turn": "the largest turn of the whole pose, in degrees either way",
+    "bone_turn": "the largest turn of a bone about its start, in degrees either way",
+}
+PROGRESS = ("a progress bar on standard error (default: on for a long run on a terminal, "
+            "off otherwise)")
 
 
 def _say(message: str) -> None:
@@ -27,8 +39,9 @@ def _demo(args) -> int:
     _say("mvcjax demo: the built-in horse, dragged by its handles")
     _say("  meshing the horse and building its rig ...")
     t0 = time.perf_counter()
-    shape = datasets.horse()
-    rig = mvcjax.Rig.build(shape, datasets.horse_handles(), shape_spacing=args.shape_spacing)
+    shape = mvcjax.datasets.horse()
+    rig = mvcjax.Rig.build(shape, mvcjax.datasets.horse_handles(),
+                           shape_spacing=args.shape_spacing)
     jax.block_until_ready(rig)
     build = time.perf_counter() - t0
     targets = _horse_drag(rig, args.frames)
@@ -38,7 +51,7 @@ def _demo(args) -> int:
     t0 = time.perf_counter()
     pictures, window = _draw_frames(rig, targets, args.size)
     draw_time = time.perf_counter() - t0
-    export.write_animation(args.animation, pictures, fps=24)
+    mvcjax.export.write_animation(args.animation, pictures, fps=24)
 
     _say("  raising the character's arm overhead, plainly and with FoldFree ...")
     arm = _arm_overhead(args.arm_degrees)
@@ -49,7 +62,7 @@ def _demo(args) -> int:
     _say_rig(shape, rig)
     _say(f"preprocess : {build * 1e3:.0f} ms (meshing, skinning weights, G)")
     _say(f"compile    : {compile_time * 1e3:.0f} ms (solve + skin, once)")
-    iterations = DEFAULT_SOLVER.iterations
+    iterations = solvers.DEFAULT_SOLVER.iterations
     _say(f"per frame  : {float(np.median(times)) * 1e3:.3f} ms (rig.deform's default: "
          f"FixedG, {iterations} iterations from the turned start, + blended MVC skinning; "
          f"median of {len(times)})")
@@ -74,7 +87,7 @@ def _horse_drag(rig, frames: int) -> np.ndarray:
     animation's frames."""
     rest = np.asarray(rig.handle_positions)
     ease = 0.5 - 0.5 * np.cos(np.linspace(0.0, 2.0 * np.pi, frames, endpoint=False))
-    return rest[None] + ease[:, None, None] * np.asarray(datasets.horse_drag())[None]
+    return rest[None] + ease[:, None, None] * np.asarray(mvcjax.datasets.horse_drag())[None]
 
 
 def _time_deform(rig, targets: np.ndarray, frames: int) -> tuple[float, list[float]]:
@@ -174,13 +187,13 @@ def _layers_demo(path, frames: int) -> None:
     own), its right arm swung across the body and back, written as an animation."""
     _say("  posing a character drawn in layers, its arm across the body and back ...")
     t0 = time.perf_counter()
-    layers = datasets.layered_figure()
-    character = mvcjax.Character.build(layers, datasets.layered_figure_handles())
+    layers = mvcjax.datasets.layered_figure()
+    character = mvcjax.Character.build(layers, mvcjax.datasets.layered_figure_handles())
     build = time.perf_counter() - t0
     t0 = time.perf_counter()
-    parts = mvcjax.deform_frames(character, datasets.layered_figure_wave(frames))
+    parts = mvcjax.deform_frames(character, mvcjax.datasets.layered_figure_wave(frames))
     renderer = mvcjax.Renderer.build(character, layers, background=(1.0, 1.0, 1.0, 1.0))
-    export.write_animation(path, renderer.frames(parts), fps=24)
+    mvcjax.export.write_animation(path, renderer.frames(parts), fps=24)
     _say(f"layers     : {character}")
     _say(f"           : built in {build:.1f} s; {frames} frames posed and drawn in "
          f"{time.perf_counter() - t0:.1f} s, compiling included: {path}")
@@ -190,12 +203,12 @@ def _arm_overhead(degrees: float) -> dict:
     """The built-in character with a bone per arm, its right arm turned `degrees` about
     the shoulder: the pose of the default solver and of `FoldFree`, each with its info
     and the number of folded shape triangles."""
-    rig = mvcjax.Rig.build(datasets.character(), datasets.character_bones("arms"))
+    rig = mvcjax.Rig.build(mvcjax.datasets.character(), mvcjax.datasets.character_bones("arms"))
     targets = np.array(rig.handle_positions)
     # Rows 4 and 5: the right arm's bone, from the shoulder to the wrist.
-    targets[5] = datasets._rotate(targets[5], targets[4], float(degrees))
+    targets[5] = mvcjax.datasets._rotate(targets[5], targets[4], float(degrees))
     poses = {}
-    for name, solver in (("default", DEFAULT_SOLVER),
+    for name, solver in (("default", solvers.DEFAULT_SOLVER),
                          ("FoldFree", mvcjax.FoldFree())):
         vertices, info = rig.deform(targets, solver, return_info=True)
         folded = mvcjax.flipped_triangles(rig.shape_mesh.vertices, vertices,
@@ -210,17 +223,17 @@ def _dataset(args) -> int:
                                    num_processes=args.num_processes,
                                    process_id=args.process_id)
     if args.glyphs is not None:
-        sprites = generate.glyph_sprites(args.glyphs, font=args.font, size=args.glyph_size)
+        sprites = mvcjax.generate.glyph_sprites(args.glyphs, font=args.font, size=args.glyph_size)
     else:
         sprites = args.sprites
-    limits = generate.PoseLimits(offset=args.offset, spread=args.spread, turn=args.turn,
-                                 bone_turn=args.bone_turn, folds=args.folds)
+    given = {name: getattr(args, name) for name in LIMITS if getattr(args, name) is not None}
+    limits = mvcjax.generate.PoseLimits(**given, folds=args.folds)
     count = len(sprites) if isinstance(sprites, dict) else "the"
     _say(f"mvcjax dataset: {count} sprites of {args.sprites}, {args.poses} poses each, "
          f"{args.size}x{args.size} pixels, into {args.out} (process "
          f"{jax.process_index() + 1} of {jax.process_count()}, "
          f"{len(jax.local_devices())} local devices)")
-    report = generate.write_dataset(
+    report = mvcjax.generate.write_dataset(
         sprites, args.out, poses=args.poses, size=args.size, limits=limits, seed=args.seed,
         batch=args.batch, progress=None if args.progress is None else args.progress == "on")
     _say(f"  {report.written} pictures written, {report.resumed} already there, "
@@ -247,10 +260,10 @@ def _animate_files_problem(files: list[str]) -> str | None:
         if not (k == 0 and len(inputs) == 3 and path.is_dir()) and \
                 path.suffix.lower() not in (".yaml", ".yml"):
             return f"{path}: not {what}; give {what} here."
-    if out.suffix and out.suffix.lower() not in export.ANIMATION_SUFFIXES:
+    if out.suffix and out.suffix.lower() not in mvcjax.export.ANIMATION_SUFFIXES:
         return (f"{out}: mvcjax cannot write {out.suffix!r} animations; give a path ending "
-                f"in {', '.join(export.ANIMATION_SUFFIXES)}, or one without a suffix for a "
-                "folder of PNG frames.")
+                f"in {', '.join(mvcjax.export.ANIMATION_SUFFIXES)}, or one without a suffix "
+                "for a folder of PNG frames.")
     return None
 
 
@@ -263,9 +276,9 @@ def _animate(args) -> int:
     _say(f"mvcjax animate: {' '.join(files[:-1])} -> {files[-1]}")
     t0 = time.perf_counter()
     try:
-        scene = motion.Scene.read(files[0]) if len(files) == 2 else motion.Scene.from_files(
-            *files[:3])
-    except (motion.BVHError, motion.ConfigError, FileNotFoundError) as error:
+        scene = (mvcjax.motion.Scene.read(files[0]) if len(files) == 2 else
+                 mvcjax.motion.Scene.from_files(*files[:3]))
+    except (mvcjax.motion.BVHError, mvcjax.motion.ConfigError, FileNotFoundError) as error:
         print(f"mvcjax animate: {error}", file=sys.stderr)
         return 2
     _say(f"  read and rigged {len(scene.actors)} character(s), {scene.frames} frames, in "
@@ -287,6 +300,15 @@ def _animate(args) -> int:
     return 0
 
 
+class _Help(argparse.ArgumentDefaultsHelpFormatter):
+    """Each option's default after its help, unless the help says it or it is None."""
+
+    def _get_help_string(self, action):
+        if action.default is None or "(default:" in (action.help or ""):
+            return action.help
+        return super()._get_help_string(action)
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mvcjax", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -298,7 +320,7 @@ def _parser() -> argparse.ArgumentParser:
         "a motion config and a retarget config), retarget the clip onto the character, pose "
         "it every frame and write the animation: .gif, .mp4, .png (animated), .webp, or a "
         "folder of PNG frames for a path without a suffix.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=_Help)
     animate.add_argument("files", nargs="+", metavar="FILE",
                          help="SCENE.yaml OUT, or CHARACTER MOTION.yaml RETARGET.yaml OUT")
     animate.add_argument("--fold-free", action="store_true",
@@ -308,13 +330,13 @@ def _parser() -> argparse.ArgumentParser:
     animate.add_argument("--follow", action="store_true",
                          help="move the window with the characters (default: one window "
                               "holds the whole animation)")
-    animate.add_argument("--progress", choices=("on", "off"), default=None)
+    animate.add_argument("--progress", choices=("on", "off"), default=None, help=PROGRESS)
     return parser
 
 
 def _demo_parser(sub) -> None:
     demo = sub.add_parser("demo", help="deform the built-in horse and write a figure",
-                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                          formatter_class=_Help)
     demo.add_argument("--out", default="mvcjax-demo.png", help="PNG figure to write")
     demo.add_argument("--animation", default="mvcjax-demo.gif",
                       help="animation to write (.gif, .png, .webp or .mp4)")
@@ -325,7 +347,7 @@ def _demo_parser(sub) -> None:
     demo.add_argument("--size", type=int, default=320, help="animation side, in pixels")
     demo.add_argument("--shape-spacing", type=float, default=None,
                       help="edge length of the shape mesh (default: the rig's)")
-    demo.add_argument("--dpi", type=int, default=110)
+    demo.add_argument("--dpi", type=int, default=110, help="the PNG figure's dots per inch")
     demo.add_argument("--arm-degrees", type=float, default=110.0,
                       help="how far the character's arm turns in the fold panels")
 
@@ -337,7 +359,7 @@ def _dataset_parser(sub) -> None:
         "keyed from their corner colour), pose each at random within limits (no folds), "
         "and write the posed pictures, masks and handle targets (mvcjax.generate). Run it "
         "again with the same options to finish an interrupted dataset.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=_Help)
     dataset.add_argument("sprites", help="a folder of sprites, or a label with --glyphs")
     dataset.add_argument("out", help="the folder to write")
     dataset.add_argument("--glyphs", default=None,
@@ -348,28 +370,24 @@ def _dataset_parser(sub) -> None:
     dataset.add_argument("--poses", type=int, default=64, help="random poses per sprite")
     dataset.add_argument("--size", type=int, default=128, help="picture side, in pixels")
     dataset.add_argument("--batch", type=int, default=32, help="poses per file")
-    dataset.add_argument("--seed", type=int, default=0)
-    limits = _pose_limits()
-    for name in ("offset", "spread", "turn", "bone_turn"):
-        dataset.add_argument(f"--{name.replace('_', '-')}", type=float,
-                             default=getattr(limits, name),
-                             help=f"PoseLimits.{name}")
+    dataset.add_argument("--seed", type=int, default=0, help="seed of the random poses")
+    for name, text in LIMITS.items():
+        dataset.add_argument(f"--{name.replace('_', '-')}", type=float, default=None,
+                             help=f"{text} (default: mvcjax.generate.PoseLimits.{name})")
     dataset.add_argument("--folds", action="store_true", help="keep poses that fold")
-    dataset.add_argument("--progress", choices=("on", "off"), default=None)
+    dataset.add_argument("--progress", choices=("on", "off"), default=None, help=PROGRESS)
     dataset.add_argument("--coordinator", default=None, help="host:port of process 0, to "
                          "run as one of several processes (jax.distributed)")
-    dataset.add_argument("--num-processes", type=int, default=None)
-    dataset.add_argument("--process-id", type=int, default=None)
+    dataset.add_argument("--num-processes", type=int, default=None,
+                         help="how many processes, with --coordinator")
+    dataset.add_argument("--process-id", type=int, default=None,
+                         help="this process's number from 0, with --coordinator")
 
 
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     commands = {"demo": _demo, "dataset": _dataset, "animate": _animate}
     return commands[args.command](args)
-
-
-def _pose_limits():
-    return PoseLimits()
 
 
 if __name__ == "__main__":

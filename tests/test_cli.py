@@ -53,3 +53,22 @@ def test_the_demo_frames_the_arm_poses_and_the_rest_outline_under_them():
             assert x0 < points[:, 0].min() and points[:, 0].max() < x1
             assert y0 < points[:, 1].min() and points[:, 1].max() < y1
     plt.close(fig)
+
+
+def test_every_commands_help_names_each_default_once_and_helps_every_option(capsys):
+    import argparse
+    import re
+
+    import pytest
+
+    from mvcjax.__main__ import _parser, main
+
+    commands = next(a for a in _parser()._actions if isinstance(a, argparse._SubParsersAction))
+    for command, parser in commands.choices.items():
+        with pytest.raises(SystemExit):
+            main([command, "--help"])
+        text = " ".join(capsys.readouterr().out.split())
+        assert "(default: None)" not in text
+        # "(default: X) (default: Y)": argparse's default after the help's own
+        assert not re.search(r"\(default:[^()]*\) \(default:", text), text
+        assert all(action.help for action in parser._actions), command

@@ -6,10 +6,14 @@ import contextlib
 import io
 import pathlib
 import re
+import warnings
 
 import jax.numpy as jnp
 import matplotlib
 import pytest
+
+import mvcjax
+from mvcjax.solvers import DEFAULT_SOLVER
 
 ROOT = pathlib.Path(__file__).parent.parent
 
@@ -56,8 +60,12 @@ def run_page(page: str, folder, monkeypatch) -> tuple[list[tuple[str, str]], dic
 
 @pytest.mark.parametrize("page", ["README.md", "docs/guide.md"])
 def test_the_page_runs_as_written(page, tmp_path, monkeypatch):
-    blocks, namespace = run_page(page, tmp_path, monkeypatch)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        blocks, namespace = run_page(page, tmp_path, monkeypatch)
     assert blocks, f"{page} has no python block"
+    # No picture of the page cut off at its window's edge.
+    assert not [w for w in caught if "cut off" in str(w.message)], page
     # Both pages pose in JAX's default float32: the deformed vertices are float32.
     assert namespace["vertices"].dtype == jnp.float32
     for code, printed in blocks:
@@ -67,3 +75,12 @@ def test_the_page_runs_as_written(page, tmp_path, monkeypatch):
             pattern = re.sub(r"(?<![\w\\'])[a-z]\w*(?![\w'])", r"\\d+", re.escape(claim))
             assert any(re.match(pattern + r"(\s|$)", line) for line in lines), (
                 f"{page}: a block says it prints {claim}, got {printed!r}")
+
+
+def test_the_guide_says_what_the_defaults_are():
+    guide = (ROOT / "docs/guide.md").read_text()
+    assert set(re.findall(r"runs (\d+) fixed-G steps", guide)) == {str(DEFAULT_SOLVER.iterations)}
+    # Options are objects: a skinning is mvcjax.advanced.BlendedMVCSkinning(), not a string.
+    assert not re.search(r'`"(blended|mvc|barycentric)"`', guide)
+    for name in re.findall(r"`(\w+Skinning)\(\)`", guide):
+        assert hasattr(mvcjax.advanced, name), name

@@ -32,7 +32,7 @@ MOVES = 12
 def dragged(tmp_path, missing, drag) -> dict:
     """The drag's row, checked, or a skip naming what to install."""
     if missing:
-        pytest.skip(f"the live drag needs {missing}")
+        pytest.skip(f"no live drag: {missing}")
     row = drag(tmp_path, moves=MOVES, step_s=0.05)
     check_dragged(row, MOVES)
     return row

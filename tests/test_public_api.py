@@ -2,6 +2,8 @@
 to `mvcjax.advanced`, and docs/api.md documenting every public name of both."""
 
 import re
+import subprocess
+import sys
 import types
 from pathlib import Path
 
@@ -23,7 +25,20 @@ def public(module) -> set[str]:
 def test_the_top_level_is_all_and_small():
     assert len(mvcjax.__all__) <= 35
     assert sorted(set(mvcjax.__all__)) == sorted(mvcjax.__all__)
-    assert public(mvcjax) - STAGES == set(mvcjax.__all__)
+    assert sorted(dir(mvcjax)) == sorted(mvcjax.__all__)
+    for name in mvcjax.__all__:  # each loaded on first use (__init__.pyi)
+        getattr(mvcjax, name)
+    assert public(mvcjax) - STAGES - {"lazy_loader"} == set(mvcjax.__all__)
+
+
+def test_import_mvcjax_and_help_load_no_jax():
+    # `import mvcjax` and `mvcjax --help` answer at once; JAX comes with the first name used.
+    script = ("import sys, mvcjax, mvcjax.__main__ as cli\n"
+              "assert 'jaxlib' not in sys.modules, 'import'\n"
+              "try:\n    cli.main(['animate', '--help'])\nexcept SystemExit:\n    pass\n"
+              "assert 'jaxlib' not in sys.modules, 'help'\n"
+              "mvcjax.Weights\nassert 'jaxlib' in sys.modules\n")
+    subprocess.run([sys.executable, "-c", script], check=True, capture_output=True)
 
 
 def test_every_public_name_is_in_the_api_reference():

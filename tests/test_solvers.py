@@ -4,6 +4,7 @@ import dataclasses
 import subprocess
 import sys
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import lineax as lx
@@ -242,13 +243,15 @@ def stick_gradients():
 
     direction = jax.random.normal(jax.random.key(0), targets.shape, targets.dtype)
     reference = mvcjax.FixedG(iterations=3000)
-    h = 1e-4
+    h = jnp.asarray(1e-4)
+    # Jitted: eagerly, each operation of the solve would be a program compiled alone.
+    jitted = eqx.filter_jit(loss)
     fd = (
-        (loss(reference, targets + h * direction, 0.0)
-         - loss(reference, targets - h * direction, 0.0)) / (2 * h),
-        (loss(reference, targets, h) - loss(reference, targets, -h)) / (2 * h),
+        (jitted(reference, targets + h * direction, 0.0)
+         - jitted(reference, targets - h * direction, 0.0)) / (2 * h),
+        (jitted(reference, targets, h) - jitted(reference, targets, -h)) / (2 * h),
     )
-    unrolled = jax.grad(loss, argnums=(1, 2))(reference, targets, 0.0)
+    unrolled = eqx.filter_jit(jax.grad(loss, argnums=(1, 2)))(reference, targets, 0.0)
     return loss, targets, direction, fd, (float(jnp.sum(unrolled[0] * direction)),
                                           float(unrolled[1]))
 
@@ -303,14 +306,16 @@ def test_implicit_gradients_match_finite_differences_and_the_unrolled_one(stick_
     assert float(grads[1]) == pytest.approx(unrolled[1], rel=1e-4)
 
 
+@pytest.mark.float64  # the stick's rig is float64
 def test_stop_early_differentiates_in_reverse_mode_either_way(stick_gradients):
     # Unrolled through equinox's checkpointed loop (lax.while_loop refused reverse mode),
     # or implicitly at the minimum it stops at.
     loss, targets, _, _, _ = stick_gradients
     early = mvcjax.FixedG(iterations=3000, stop_early=True, anderson=5)
-    assert bool(jnp.all(jnp.isfinite(jax.grad(loss, argnums=1)(early, targets, 0.0))))
+    gradient = eqx.filter_jit(jax.grad(loss, argnums=1))
+    assert bool(jnp.all(jnp.isfinite(gradient(early, targets, 0.0))))
     implicit = dataclasses.replace(early, adjoint=optx.ImplicitAdjoint())
-    assert bool(jnp.all(jnp.isfinite(jax.grad(loss, argnums=1)(implicit, targets, 0.0))))
+    assert bool(jnp.all(jnp.isfinite(gradient(implicit, targets, 0.0))))
     with pytest.raises(TypeError, match=r"adjoint=optx.ImplicitAdjoint\(\)"):
         mvcjax.FixedG(adjoint="implicit")
     with pytest.raises(TypeError, match="choose optx.RecursiveCheckpointAdjoint"):
