@@ -21,6 +21,7 @@ from typing import Any
 
 import equinox as eqx
 import jax
+from jax._src.core import is_concrete  # public as jax.core.is_concrete, deprecated there
 
 
 class _Static(eqx.Module):
@@ -147,6 +148,13 @@ def is_traced(*trees) -> bool:
     return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(trees))
 
 
+def is_staged(*trees) -> bool:
+    """True if a transformation stages `trees` out (`jit`, `vmap`, a loop's body): a leaf
+    is a tracer without a value. Eager `jax.grad` and `jax.jvp` trace with values."""
+    return any(isinstance(leaf, jax.core.Tracer) and not is_concrete(leaf)
+               for leaf in jax.tree.leaves(trees))
+
+
 def first(*args, **kwargs):
     """The owner of a program that takes it first (a rig, an energy, a renderer)."""
     return args[0]
@@ -157,10 +165,14 @@ def compiled_by(owner: Callable = first, *, donate: str | None = None,
     """Decorate `fn` to run compiled, as one of the programs of `owner(*args, **kwargs)`
     (by default the first argument).
 
-    `inline_when_traced`: inside a transformation, run `fn` as it is (the caller's `jit`
-    compiles it) instead of as a nested `jit`: no slower there, and jaxopt's implicit
-    gradients leak a tracer through a nested one. A nested one is what a function needs
-    that a transformation may run op by op (a `custom_vmap` called outside `vmap`).
+    `inline_when_traced`: inside a transformation that stages it out (`jit`, `vmap`),
+    run `fn` as it is (the caller's `jit` compiles it) instead of as a nested `jit`: no
+    slower there, and jaxopt's implicit gradients leak a tracer through a nested one.
+    Under eager `jax.grad` or `jax.jvp` it runs as its program, differentiated whole (run
+    inline, every operation of it and of its derivative would compile alone), unless an
+    argument has a true `inline_when_differentiated` (jaxopt's solvers). A nested `jit`
+    is what a function needs that a transformation may run op by op (a `custom_vmap`
+    called outside `vmap`).
 
     Arguments that are not arrays (numbers, strings, solver options) are compiled in, as
     `jax.jit`'s static arguments would be; the array of keyword argument `donate`, if
@@ -170,7 +182,10 @@ def compiled_by(owner: Callable = first, *, donate: str | None = None,
     def wrap(fn):
         @functools.wraps(fn)
         def call(*args, **kwargs):
-            if inline_when_traced and is_traced(args, kwargs):
+            if inline_when_traced and is_traced(args, kwargs) and (
+                    is_staged(args, kwargs) or any(
+                        getattr(a, "inline_when_differentiated", False)
+                        for a in (*args, *kwargs.values()))):
                 return fn(*args, **kwargs)
             return owner(*args, **kwargs).programs.run(fn, args, kwargs, donate)
 

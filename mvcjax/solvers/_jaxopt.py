@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -45,6 +46,9 @@ class _JaxoptLeastSquares(AbstractSolver):
     """
 
     _MODULE = "mvcjax.advanced"
+    # Differentiated eagerly, the rig runs the solve op by op (mvcjax.core.compiled_by):
+    # through a nested jit, jaxopt's implicit gradients would leak a tracer.
+    inline_when_differentiated: ClassVar[bool] = True
 
     tol: float | None = eqx.field(default=None, static=True, converter=python_scalar)
     max_steps: int = eqx.field(default=256, static=True, converter=python_scalar)
