@@ -9,6 +9,7 @@ import pickle
 import weakref
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 import mvcjax
@@ -83,6 +84,25 @@ def test_a_rig_built_compiles_a_few_programs_and_its_renderer_a_few_more(caplog)
         assert 1 <= len(built) <= 2, built
         assert 1 <= len(drawn) <= 2, drawn
     assert len(sizes) == 2  # new sizes each time
+
+
+def test_an_eager_gradient_compiles_the_rigs_program_differentiated_not_each_operation(caplog):
+    rig = build(6)
+    targets = rig.handle_positions + 2.0
+    pose(rig)
+
+    def loss(t):
+        return jnp.sum(rig.deform(t) ** 2)
+
+    with compiling(caplog) as compiled:
+        eager = jax.grad(loss)(targets)
+    assert 1 <= len(compiled) <= 20, compiled  # run op by op: hundreds
+    with compiling(caplog) as compiled:
+        again = jax.grad(loss)(targets + 1.0)
+    assert compiled == []  # new targets, the same programs
+    np.testing.assert_allclose(eager, jax.jit(jax.grad(loss))(targets), rtol=1e-4,
+                               atol=1e-5 * float(jnp.abs(eager).max()))
+    assert not np.allclose(again, eager)
 
 
 def test_programs_go_with_the_last_rig_of_their_size(caplog, monkeypatch):
