@@ -383,11 +383,20 @@ class FoldFree(AbstractSolver):
                                 previous)
         search = functools.partial(_armijo_search, problem, barriers, y, points, value,
                                    gradient)
+
         # Where the Gauss-Newton direction finds no decrease (its model can be poor
-        # next to a barrier), the fixed-G direction `-N^{-1} g` still descends.
-        found = search(-x)
-        accept, step_size, trial, moves, direction = jax.lax.cond(
-            found[0], lambda _: found, lambda _: search(-inverse.mv(gradient)), None)
+        # next to a barrier), the fixed-G direction `-N^{-1} g` still descends: a loop
+        # of at most two searches, so that the search is compiled once.
+        def attempt(state):
+            tries, _ = state
+            direction = jax.lax.cond(tries == 0, lambda: -x, lambda: -inverse.mv(gradient))
+            return tries + 1, search(direction)
+
+        none = (jnp.zeros((), bool), jnp.zeros((), y.dtype), value,
+                tuple(jnp.zeros_like(p) for p in points), jnp.zeros_like(y))
+        _, (accept, step_size, trial, moves, direction) = jax.lax.while_loop(
+            lambda state: (state[0] == 0) | ((state[0] < 2) & ~state[1][0]), attempt,
+            (jnp.zeros((), jnp.int32), none))
         new_y = y + step_size * direction
         new_points = tuple(p + step_size * q for p, q in zip(points, moves))
         new_value = jnp.where(accept, trial, value)
