@@ -105,6 +105,23 @@ def test_an_eager_gradient_compiles_the_rigs_program_differentiated_not_each_ope
     assert not np.allclose(again, eager)
 
 
+def test_a_start_and_a_skin_are_a_program_each_eagerly(caplog):
+    # Outside jit, a rig's start (the turned start's dozens of operations) and its
+    # skinning run as one compiled program each, as its solve does, reused for new
+    # targets; the same numbers as under jit.
+    rig = build(7)
+    targets = rig.handle_positions + 2.0
+    with compiling(caplog) as compiled:
+        start = rig.start(targets)
+        skinned = rig.skin(start)
+    assert 1 <= len(compiled) <= 4, compiled  # op by op: over a hundred
+    with compiling(caplog) as compiled:
+        rig.skin(rig.start(targets + 1.0))
+    assert compiled == []
+    np.testing.assert_allclose(start, jax.jit(rig.start)(targets), rtol=0, atol=1e-5)
+    np.testing.assert_allclose(skinned, jax.jit(rig.skin)(start), rtol=0, atol=1e-5)
+
+
 def test_programs_go_with_the_last_rig_of_their_size(caplog, monkeypatch):
     monkeypatch.setattr(_programs, "RECENT", 0)  # none kept after their rigs
     rig = build(11, 13)

@@ -380,13 +380,7 @@ class Character(AbstractRig):
         """Starting vertices of the joined control mesh (`control_mesh`) for `(t, 2)`
         targets: every part's start (`Rig.start`, a start), parents first, an
         attached part's attachment targets carried by its parent's start."""
-        targets = self._check_targets(targets)
-        starts = [None] * len(self.parts)
-        for i in self.order:
-            parent = self.parents[i]
-            own = self.part_targets(i, targets, None if parent < 0 else starts[parent])
-            starts[i] = self.parts[i].start(own, init)
-        return self.joined(starts)
+        return _start_parts(self, self._check_targets(targets), init)
 
     def solve(self, targets: Any, solver: Any = DEFAULT_SOLVER, *, init: Init = TurnedStart(),
               return_info: bool = False):
@@ -411,7 +405,7 @@ class Character(AbstractRig):
 
     def skin(self, control: tuple) -> tuple:
         """Every part's shape-mesh vertices carried by its control vertices."""
-        return tuple(part.skin(c) for part, c in zip(self.parts, control))
+        return _skin_parts(self, tuple(control))
 
     def deform(self, targets: Any, solver: Any = DEFAULT_SOLVER, *, init: Init = TurnedStart(),
                return_info: bool = False):
@@ -459,6 +453,21 @@ def _joined(meshes: list[tuple]) -> list:
     return [jnp.concatenate([m[0] for m in meshes])] + [
         jnp.concatenate([m[k] + start for m, start in zip(meshes, starts)])
         for k in range(1, len(meshes[0]))]
+
+
+@compiled_by(inline_when_traced=True)
+def _start_parts(character: Character, targets, init):
+    starts = [None] * len(character.parts)
+    for i in character.order:
+        parent = character.parents[i]
+        own = character.part_targets(i, targets, None if parent < 0 else starts[parent])
+        starts[i] = character.parts[i].start(own, init)
+    return character.joined(starts)
+
+
+@compiled_by(inline_when_traced=True)
+def _skin_parts(character: Character, control: tuple):
+    return tuple(part.skin(c) for part, c in zip(character.parts, control))
 
 
 @compiled_by(inline_when_traced=True)

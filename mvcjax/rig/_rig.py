@@ -579,8 +579,7 @@ class Rig(AbstractRig):
                 explicit `(c, 2)` array (a previous frame's control vertices, for
                 instance).
         """
-        return self.frame.to_world(self._local_start(
-            self.frame.to_local(self._check_targets(targets)), self._check_init(init)))
+        return _start(self, self._check_targets(targets), self._check_init(init))
 
     def _check_targets(self, targets) -> Float[Array, "h 2"]:
         self._single()
@@ -656,7 +655,7 @@ class Rig(AbstractRig):
 
     def skin(self, control_vertices: Float[ArrayLike, "c 2"]) -> Float[Array, "n 2"]:
         """Shape-mesh vertices `(n, 2)` carried by `(c, 2)` control vertices (`V_S = W V_C`)."""
-        return self.skinning(self.frame.to_local(control_vertices), self.frame)
+        return _skin(self, jnp.asarray(control_vertices, self.energy.rest.dtype))
 
     def weights_at(self, points: Any) -> Skinning:
         """Skinning weights for any rest points the control mesh covers: pixels,
@@ -764,6 +763,16 @@ def _solve(rig: Rig, targets, solver: AbstractSolver, init):
 def _deform(rig: Rig, targets, solver: AbstractSolver, init):
     vertices, info = solve_in_frame(rig, targets, solver, init)
     return rig.skinning(vertices, rig.frame), info
+
+
+@compiled_by(inline_when_traced=True)
+def _start(rig: Rig, targets, init):
+    return rig.frame.to_world(rig._local_start(rig.frame.to_local(targets), init))
+
+
+@compiled_by(inline_when_traced=True)
+def _skin(rig: Rig, control):
+    return rig.skinning(rig.frame.to_local(control), rig.frame)
 
 
 # A rest Laplacian shorter than this (the rig's frame: a unit diagonal) is a straight
