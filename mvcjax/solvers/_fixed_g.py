@@ -125,24 +125,28 @@ class FixedG(AbstractSolver):
             default (`anderson=5`, a few hundred). A tolerance below the rounding noise
             of the residual times that factor (about 1e-12 in float64) may never be met.
             `converged` reports whether the tolerance was met.
-        stop_early: stop as soon as the tolerance is met. With the default adjoint this
-            runs equinox's checkpointed while loop: as fast as a plain one, and reverse
-            mode (`jax.grad`) differentiates the iterations run by recomputing them from
-            checkpoints, but forward mode (`jax.jvp`, `jax.jacfwd`) is refused (JAX's
-            TypeError about a custom_vjp function). `optx.ImplicitAdjoint()` supports
-            both modes, and for a solve run to convergence it is cheaper and exact at
-            the minimum.
-        adjoint: how gradients flow through the solve, an optimistix adjoint.
-            `optx.RecursiveCheckpointAdjoint()` (default) differentiates every
-            iteration of the loop: exact for what was computed, even after 15
-            iterations, at the memory cost of all of them in reverse mode.
-            `optx.ImplicitAdjoint()` applies the implicit function theorem at the
-            returned vertices, taken to be a stationary point of the energy: one
-            linear solve with the energy's Hessian, whatever the number of iterations.
-            Right for solves run to convergence, so it requires `stop_early=True`. Its
-            linear solve is conjugate gradients preconditioned by the rig's factor (a
-            dense solve would form the Hessian): leave its `linear_solver` at the
-            default.
+        stop_early: stop as soon as the tolerance is met. With the checkpointed adjoint
+            this runs equinox's checkpointed while loop: as fast as a plain one, and
+            reverse mode (`jax.grad`) differentiates the iterations run by recomputing
+            them from checkpoints, but forward mode (`jax.jvp`, `jax.jacfwd`) is refused
+            (JAX's TypeError about a custom_vjp function). `optx.ImplicitAdjoint()`
+            supports both modes, and for a solve run to convergence it is cheaper and
+            exact at the minimum.
+        adjoint: how gradients flow through the solve, an optimistix adjoint, or None
+            (default) for `optx.ImplicitAdjoint()` with `anderson` and `stop_early`
+            together and `optx.RecursiveCheckpointAdjoint()` otherwise.
+            `optx.RecursiveCheckpointAdjoint()` differentiates every iteration of the
+            loop: exact for what was computed, even after 15 iterations, at the memory
+            cost of all of them in reverse mode. Through Anderson's mixing run to a
+            tolerance it differentiates least-squares fits to differences at the
+            rounding noise, which may leave the derivative of the minimum far behind
+            (float32 most): hence the default there. `optx.ImplicitAdjoint()` applies
+            the implicit function theorem at the returned vertices, taken to be a
+            stationary point of the energy: one linear solve with the energy's Hessian,
+            whatever the number of iterations. Right for solves run to convergence, so
+            it requires `stop_early=True`. Its linear solve is conjugate gradients
+            preconditioned by the rig's factor (a dense solve would form the Hessian):
+            leave its `linear_solver` at the default.
         anderson: if positive, Anderson acceleration over the last `anderson` steps,
             with three safeguards: a ridge on the small least-squares system, an energy
             check (an extrapolation that does not lower the energy below the plain
@@ -163,8 +167,8 @@ class FixedG(AbstractSolver):
     anderson: int = eqx.field(default=0, static=True, converter=python_scalar)
     regularisation: float = eqx.field(default=1e-10, static=True, converter=python_scalar)
     unroll: int = eqx.field(default=32, static=True, converter=python_scalar)
-    adjoint: optx.AbstractAdjoint = eqx.field(default=optx.RecursiveCheckpointAdjoint(),
-                                              static=True, converter=checked_in_init)
+    adjoint: optx.AbstractAdjoint | None = eqx.field(default=None, static=True,
+                                                     converter=checked_in_init)
 
     def __check_init__(self):
         check_count(self, "iterations")
@@ -178,12 +182,13 @@ class FixedG(AbstractSolver):
             raise TypeError(f"FixedG(adjoint={self.adjoint!r}): an adjoint is an optimistix "
                             f"object; write adjoint=optx.{name}() (import optimistix as "
                             "optx).")
-        if not isinstance(self.adjoint, (optx.RecursiveCheckpointAdjoint,
-                                         optx.ImplicitAdjoint)):
+        if self.adjoint is not None and not isinstance(
+                self.adjoint, (optx.RecursiveCheckpointAdjoint, optx.ImplicitAdjoint)):
             raise TypeError(f"FixedG(adjoint={self.adjoint!r}): choose "
                             "optx.RecursiveCheckpointAdjoint() (through the iterations) or "
                             "optx.ImplicitAdjoint() (at the minimum).")
-        if self._implicit and not isinstance(self.adjoint.linear_solver, lx.AutoLinearSolver):
+        if self._implicit and self.adjoint is not None and not isinstance(
+                self.adjoint.linear_solver, lx.AutoLinearSolver):
             raise ValueError(
                 f"FixedG(adjoint={self.adjoint!r}): the implicit adjoint solves with the "
                 "energy's Hessian by conjugate gradients preconditioned by the rig's factor; "
@@ -192,12 +197,16 @@ class FixedG(AbstractSolver):
             raise ValueError(
                 "FixedG(adjoint=optx.ImplicitAdjoint()) differentiates at a minimum, which a "
                 f"fixed number of iterations ({self.iterations}) does not reach: add "
-                "stop_early=True (with enough iterations, or anderson=...), or keep the "
-                "default adjoint, optx.RecursiveCheckpointAdjoint()."
+                "stop_early=True (with enough iterations, or anderson=...), or leave out "
+                "adjoint for optx.RecursiveCheckpointAdjoint()."
             )
 
     @property
     def _implicit(self) -> bool:
+        """Differentiated at the minimum: asked for, or by default (`adjoint=None`) where
+        Anderson's mixing runs to a tolerance."""
+        if self.adjoint is None:
+            return self.stop_early and self.anderson > 0
         return isinstance(self.adjoint, optx.ImplicitAdjoint)
 
     def _advance(self, energy, factor, targets, init):
