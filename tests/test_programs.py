@@ -122,6 +122,18 @@ def test_a_start_and_a_skin_are_a_program_each_eagerly(caplog):
     np.testing.assert_allclose(skinned, jax.jit(rig.skin)(start), rtol=0, atol=1e-5)
 
 
+def test_an_eager_vmap_over_a_stack_compiles_its_program_batched(caplog):
+    # Outside jit, jax.vmap of a rig's deform over a stack of rigs runs the rig's
+    # program batched whole, not each operation as a program of its own.
+    stack = mvcjax.Rig.stack([build(5), build(6)])
+    targets = stack.handle_positions + 2.0
+    with compiling(caplog) as compiled:
+        posed = jax.vmap(lambda r, t: r.deform(t))(stack, targets)
+    assert 1 <= len(compiled) <= 8, compiled  # op by op: hundreds
+    np.testing.assert_allclose(posed, jax.jit(jax.vmap(lambda r, t: r.deform(t)))(
+        stack, targets), rtol=0, atol=1e-4)
+
+
 def test_programs_go_with_the_last_rig_of_their_size(caplog, monkeypatch):
     monkeypatch.setattr(_programs, "RECENT", 0)  # none kept after their rigs
     rig = build(11, 13)

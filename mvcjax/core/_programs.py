@@ -22,6 +22,8 @@ from typing import Any
 import equinox as eqx
 import jax
 from jax._src.core import is_concrete  # public as jax.core.is_concrete, deprecated there
+from jax._src.interpreters.ad import JVPTracer, LinearizeTracer
+from jax._src.interpreters.batching import BatchTracer
 
 
 class _Static(eqx.Module):
@@ -149,10 +151,26 @@ def is_traced(*trees) -> bool:
 
 
 def is_staged(*trees) -> bool:
-    """True if a transformation stages `trees` out (`jit`, `vmap`, a loop's body): a leaf
-    is a tracer without a value. Eager `jax.grad` and `jax.jvp` trace with values."""
-    return any(isinstance(leaf, jax.core.Tracer) and not is_concrete(leaf)
-               for leaf in jax.tree.leaves(trees))
+    """True if a transformation stages `trees` out (`jit`, a loop's body): a leaf is a
+    tracer without values underneath. Eager `jax.grad`, `jax.jvp` and `jax.vmap` trace
+    with values (the primals, the batch) as they go."""
+    return not all(_valued(leaf) for leaf in jax.tree.leaves(trees))
+
+
+def _valued(leaf) -> bool:
+    """Whether `leaf` is a value, or a tracer of eager transformations over values."""
+    while isinstance(leaf, jax.core.Tracer):
+        if is_concrete(leaf):
+            return True
+        underneath = _UNDERNEATH.get(type(leaf))  # a staged tracer has none
+        if underneath is None:
+            return False
+        leaf = getattr(leaf, underneath)
+    return True
+
+
+# What an eager transformation's tracer carries its values in.
+_UNDERNEATH = {BatchTracer: "val", JVPTracer: "primal", LinearizeTracer: "primal"}
 
 
 def first(*args, **kwargs):
@@ -165,14 +183,14 @@ def compiled_by(owner: Callable = first, *, donate: str | None = None,
     """Decorate `fn` to run compiled, as one of the programs of `owner(*args, **kwargs)`
     (by default the first argument).
 
-    `inline_when_traced`: inside a transformation that stages it out (`jit`, `vmap`),
+    `inline_when_traced`: inside a transformation that stages it out (`jit`),
     run `fn` as it is (the caller's `jit` compiles it) instead of as a nested `jit`: no
     slower there, and jaxopt's implicit gradients leak a tracer through a nested one.
-    Under eager `jax.grad` or `jax.jvp` it runs as its program, differentiated whole (run
-    inline, every operation of it and of its derivative would compile alone), unless an
-    argument has a true `inline_when_differentiated` (jaxopt's solvers). A nested `jit`
-    is what a function needs that a transformation may run op by op (a `custom_vmap`
-    called outside `vmap`).
+    Under eager `jax.grad`, `jax.jvp` or `jax.vmap` it runs as its program,
+    differentiated or batched whole (run inline, every operation of it and of its
+    derivative would compile alone), unless an argument has a true
+    `inline_when_differentiated` (jaxopt's solvers). A nested `jit` is what a function
+    needs that a transformation may run op by op (a `custom_vmap` called outside `vmap`).
 
     Arguments that are not arrays (numbers, strings, solver options) are compiled in, as
     `jax.jit`'s static arguments would be; the array of keyword argument `donate`, if
