@@ -247,8 +247,8 @@ SLOW = [
     "tests/test_solvers.py::test_solvers_agree_with_scipy[jaxopt_*-0-offset0]",
     "tests/test_batching.py::test_a_batch_of_rigs_falls_back_to_jax_batching",
     # The longest of the default run, each with a lighter sibling kept there: a character
-    # warm-started by FoldFree frame after frame (a rig's stays, in test_animation), and
-    # dragged fold-free in interact (a rig's stays); a laddered rig under FoldFree with a
+    # warm-started frame after frame (a rig's stays, in test_animation), and dragged
+    # fold-free in interact (a rig's stays); a laddered rig under FoldFree with a
     # bone (with points stays); the guide run as written (the README's stays); the memory
     # of sixteen rigs of new sizes (that rigs of one size share programs stays).
     "tests/test_character.py::test_warm_started_frames_start_each_from_the_pose_before",
