@@ -58,24 +58,30 @@ def pytest_runtest_protocol(item, nextitem):
     # host callbacks run on XLA's threads.
     jax.config.update("jax_enable_x64", item.get_closest_marker("float64") is not None)
     item.compiled_before = dict(_COMPILED)
+    item.programs_before = dict(_BY_PROGRAM)
     try:
         yield
     finally:
         jax.config.update("jax_enable_x64", False)
 
 
-# What each test compiles (XLA's compiles, not found in the persistent cache, and JAX's
-# tracing), counted in its setup and call and sent with its report, even from an xdist
-# worker: the run ends with the tests that compile the most.
+# What each test compiles (XLA's compiles, or their loading from the persistent cache,
+# and JAX's tracing), counted in its setup and call and sent with its report, even from
+# an xdist worker: the run ends with the tests and the programs (by function name) that
+# compile the most.
 _COMPILE_EVENTS = {"/jax/core/compile/backend_compile_duration": "compile",
                    "/jax/core/compile/jaxpr_trace_duration": "trace"}
 _COMPILED = collections.Counter()
+_BY_PROGRAM = collections.Counter()  # "name" -> compile seconds, "name#" -> programs
 
 
-def _count_compiles(event, seconds, **_):
+def _count_compiles(event, seconds, fun_name="?", **_):
     if event in _COMPILE_EVENTS:
         _COMPILED[_COMPILE_EVENTS[event] + "_s"] += seconds
         _COMPILED[_COMPILE_EVENTS[event] + "s"] += 1
+        if _COMPILE_EVENTS[event] == "compile":
+            _BY_PROGRAM[fun_name] += seconds
+            _BY_PROGRAM[fun_name + "#"] += 1
 
 
 jax.monitoring.register_event_duration_secs_listener(_count_compiles)
@@ -87,6 +93,8 @@ def pytest_runtest_makereport(item, call):
         spent = _COMPILED - collections.Counter(item.compiled_before)
         item.user_properties.append(("compiled", {k: spent[k] for k in
                                                   ("compiles", "compile_s", "trace_s")}))
+        item.user_properties.append(
+            ("programs", dict(_BY_PROGRAM - collections.Counter(item.programs_before))))
     yield
 
 
@@ -297,3 +305,11 @@ def pytest_terminal_summary(terminalreporter):
             terminalreporter.write_line(
                 f"  {counts.get('compile_s', 0.0):6.1f} s {counts.get('compiles', 0):4d} "
                 f"programs (tracing {counts.get('trace_s', 0.0):5.1f} s)  {nodeid}")
+        programs = collections.Counter()
+        for report in ran:
+            programs.update(dict(report.user_properties).get("programs", {}))
+        terminalreporter.write_line("compiled, by function (all its sizes and options):")
+        for name, seconds in sorted(((n, s) for n, s in programs.items()
+                                     if not n.endswith("#")), key=lambda p: -p[1])[:10]:
+            terminalreporter.write_line(
+                f"  {seconds:6.1f} s {programs[name + '#']:4d} programs  {name}")
