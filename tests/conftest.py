@@ -58,7 +58,7 @@ def pytest_runtest_protocol(item, nextitem):
     # host callbacks run on XLA's threads.
     jax.config.update("jax_enable_x64", item.get_closest_marker("float64") is not None)
     item.compiled_before = dict(_COMPILED)
-    item.programs_before = dict(_BY_PROGRAM)
+    item.programs_before = (dict(_PROGRAM_SECONDS), dict(_PROGRAM_COUNT))
     try:
         yield
     finally:
@@ -72,7 +72,8 @@ def pytest_runtest_protocol(item, nextitem):
 _COMPILE_EVENTS = {"/jax/core/compile/backend_compile_duration": "compile",
                    "/jax/core/compile/jaxpr_trace_duration": "trace"}
 _COMPILED = collections.Counter()
-_BY_PROGRAM = collections.Counter()  # "name" -> compile seconds, "name#" -> programs
+_PROGRAM_SECONDS = collections.Counter()  # by function name: compile seconds
+_PROGRAM_COUNT = collections.Counter()  # by function name: programs compiled
 
 
 def _count_compiles(event, seconds, fun_name="?", **_):
@@ -80,8 +81,8 @@ def _count_compiles(event, seconds, fun_name="?", **_):
         _COMPILED[_COMPILE_EVENTS[event] + "_s"] += seconds
         _COMPILED[_COMPILE_EVENTS[event] + "s"] += 1
         if _COMPILE_EVENTS[event] == "compile":
-            _BY_PROGRAM[fun_name] += seconds
-            _BY_PROGRAM[fun_name + "#"] += 1
+            _PROGRAM_SECONDS[fun_name] += seconds
+            _PROGRAM_COUNT[fun_name] += 1
 
 
 jax.monitoring.register_event_duration_secs_listener(_count_compiles)
@@ -93,8 +94,9 @@ def pytest_runtest_makereport(item, call):
         spent = _COMPILED - collections.Counter(item.compiled_before)
         item.user_properties.append(("compiled", {k: spent[k] for k in
                                                   ("compiles", "compile_s", "trace_s")}))
-        item.user_properties.append(
-            ("programs", dict(_BY_PROGRAM - collections.Counter(item.programs_before))))
+        item.user_properties.append(("programs", [
+            dict(now - collections.Counter(before))
+            for now, before in zip((_PROGRAM_SECONDS, _PROGRAM_COUNT), item.programs_before)]))
     yield
 
 
@@ -305,11 +307,11 @@ def pytest_terminal_summary(terminalreporter):
             terminalreporter.write_line(
                 f"  {counts.get('compile_s', 0.0):6.1f} s {counts.get('compiles', 0):4d} "
                 f"programs (tracing {counts.get('trace_s', 0.0):5.1f} s)  {nodeid}")
-        programs = collections.Counter()
+        seconds, count = collections.Counter(), collections.Counter()
         for report in ran:
-            programs.update(dict(report.user_properties).get("programs", {}))
+            spent, compiled_count = dict(report.user_properties).get("programs", ({}, {}))
+            seconds.update(spent)
+            count.update(compiled_count)
         terminalreporter.write_line("compiled, by function (all its sizes and options):")
-        for name, seconds in sorted(((n, s) for n, s in programs.items()
-                                     if not n.endswith("#")), key=lambda p: -p[1])[:10]:
-            terminalreporter.write_line(
-                f"  {seconds:6.1f} s {programs[name + '#']:4d} programs  {name}")
+        for name, spent in seconds.most_common(10):
+            terminalreporter.write_line(f"  {spent:6.1f} s {count[name]:4d} programs  {name}")

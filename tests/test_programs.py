@@ -129,7 +129,7 @@ def test_an_eager_vmap_over_a_stack_compiles_its_program_batched(caplog):
     targets = stack.handle_positions + 2.0
     with compiling(caplog) as compiled:
         posed = jax.vmap(lambda r, t: r.deform(t))(stack, targets)
-    assert 1 <= len(compiled) <= 8, compiled  # op by op: hundreds
+    assert 1 <= len(compiled) <= 8, compiled  # op by op, each operation would be one
     np.testing.assert_allclose(posed, jax.jit(jax.vmap(lambda r, t: r.deform(t)))(
         stack, targets), rtol=0, atol=1e-4)
 

@@ -22,8 +22,8 @@ from typing import Any
 import equinox as eqx
 import jax
 from jax._src.core import is_concrete  # public as jax.core.is_concrete, deprecated there
-from jax._src.interpreters.ad import JVPTracer, LinearizeTracer
-from jax._src.interpreters.batching import BatchTracer
+from jax._src.interpreters.ad import JVPTracer, LinearizeTracer  # no public names
+from jax._src.interpreters.batching import BatchTracer  # no public name
 
 
 class _Static(eqx.Module):
