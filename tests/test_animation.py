@@ -138,7 +138,8 @@ print(max(float(jnp.abs(one - four).max()),
 
 def test_frames_sharded_over_four_devices_give_the_same_result():
     # A rig's, and a character's (the same protocol).
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4",
+    flags = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=4"
+    env = {**os.environ, "XLA_FLAGS": flags,
            "JAX_PLATFORMS": "cpu"}
     out = subprocess.run([sys.executable, "-c", SHARDED], env=env, capture_output=True,
                          text=True, check=True)

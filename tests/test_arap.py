@@ -39,9 +39,10 @@ def _libigl(rig, iterations):
 def test_fixed_g_on_the_arap_term_is_libigls_arap(horse):
     # FixedG's local-global steps on the term alone are libigl's ARAP iteration: the
     # same iterates from the same start, and the same minimum. libigl holds the handles
-    # exactly; here a handle weight 1e7 times the term's holds them to 1e-9 of the
-    # diagonal.
-    rig = _small_full_rig(horse, 1e7)
+    # exactly; here a handle weight 1e5 times the term's holds them to 1e-7 of the
+    # diagonal. (At 1e6 or more, Gauss-Newton's steps stop at float64's rounding floor
+    # of this stiff problem, and whether it claims convergence hangs on that rounding.)
+    rig = _small_full_rig(horse, 1e5)
     targets = rig.handle_positions + datasets.horse_drag()
     pinned = np.asarray(rig.pinned_targets(targets))
     start = np.array(rig.start(targets))

@@ -14,7 +14,7 @@ import pytest
 import mvcjax
 from mvcjax import datasets
 
-from conftest import directional_derivatives, float64_on
+from conftest import UNOPTIMISED, directional_derivatives, float64_on
 
 
 def test_the_default_paths_give_float32_near_float64(horse_rig32):
@@ -81,11 +81,17 @@ def test_least_squares_solvers_claim_convergence_only_near_the_minimum(weights):
 
 @pytest.mark.slow
 def test_the_float32_verdicts_hold_under_another_rounding():
-    # XLA's CPU backend unoptimised and on one thread vectorises, fuses and reduces in
-    # other orders: other float32 rounding, as on another machine. Every verdict above
-    # (convergence claimed, gradients against finite differences) holds there too.
-    flags = "--xla_backend_optimization_level=0 --xla_cpu_multi_thread_eigen=false"
-    env = dict(os.environ, XLA_FLAGS=f"{os.environ.get('XLA_FLAGS', '')} {flags}".strip(),
+    # XLA's CPU backend optimised or not, on many threads or one, vectorises, fuses and
+    # reduces in other orders: other float32 rounding, as on another machine. Every
+    # verdict above (convergence claimed, gradients against finite differences) holds
+    # under the other one too: the users' optimised programs where the suite runs
+    # unoptimised (conftest), else unoptimised programs on one thread.
+    flags = os.environ.get("XLA_FLAGS", "")
+    if UNOPTIMISED in flags:
+        flags = flags.replace(UNOPTIMISED, "")
+    else:
+        flags = f"{flags} {UNOPTIMISED} --xla_cpu_multi_thread_eigen=false"
+    env = dict(os.environ, XLA_FLAGS=flags.strip(), MVCJAX_TEST_XLA="optimised",
                MVCJAX_TEST_JAX_CACHE="off")
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
     run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-n", "0", "-p",

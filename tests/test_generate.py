@@ -240,7 +240,8 @@ def _free_port() -> int:
 def test_two_processes_with_two_devices_each_write_the_dataset(tmp_path):
     # `mvcjax dataset` as two processes of one jax.distributed job, each with two CPU
     # devices: the same pictures as one process on one device.
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2",
+    flags = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=2"
+    env = {**os.environ, "XLA_FLAGS": flags,
            "JAX_PLATFORMS": "cpu"}
     command = [sys.executable, "-m", "mvcjax", "dataset", "glyphs", str(tmp_path / "two"),
                "--glyphs", "Lo", "--glyph-size", "48", "--poses", "6", "--batch", "4",
