@@ -5,12 +5,14 @@
 from __future__ import annotations
 
 import argparse
+import os
 import pathlib
 import sys
 import time
 
 import lazy_loader
 import numpy as np
+import platformdirs
 
 import mvcjax
 
@@ -29,6 +31,32 @@ LIMITS = {
 }
 PROGRESS = ("a progress bar on standard error (default: on for a long run on a terminal, "
             "off otherwise)")
+
+
+# JAX's persistent compilation cache, as `jax.config` names its settings: every program,
+# however quick to compile (a command compiles hundreds, most in milliseconds).
+CACHE_SETTINGS = {"jax_persistent_cache_min_compile_time_secs": 0.0,
+                  "jax_persistent_cache_min_entry_size_bytes": 0}
+
+
+def _keep_compiled(folder: str | None) -> None:
+    """Keep what the command compiles in JAX's persistent compilation cache in `folder`
+    (`--compile-cache`; None: $MVCJAX_COMPILE_CACHE, else the user's cache folder;
+    "off": none), so that the next run loads it instead of compiling. Where the user
+    set JAX's own cache folder (`JAX_COMPILATION_CACHE_DIR`), that one is used."""
+    folder = folder or os.environ.get("MVCJAX_COMPILE_CACHE") or _default_cache()
+    if folder == "off" or os.environ.get("JAX_COMPILATION_CACHE_DIR"):
+        return
+    settings = {"jax_compilation_cache_dir": folder, **CACHE_SETTINGS}
+    if "jax" in sys.modules:  # main() called from Python, JAX loaded
+        for name, value in settings.items():
+            jax.config.update(name, value)
+    else:  # read when JAX loads, after the command has checked its input
+        os.environ.update({name.upper(): str(value) for name, value in settings.items()})
+
+
+def _default_cache() -> str:
+    return os.path.join(platformdirs.user_cache_dir("mvcjax"), "jax")
 
 
 def _say(message: str) -> None:
@@ -312,15 +340,21 @@ class _Help(argparse.ArgumentDefaultsHelpFormatter):
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mvcjax", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
-    _demo_parser(sub)
-    _dataset_parser(sub)
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--compile-cache", default=None, metavar="FOLDER",
+                        help="keep what the command compiles in this folder (JAX's "
+                        "persistent compilation cache), so that the next run loads it; "
+                        "'off' for none (default: $MVCJAX_COMPILE_CACHE, else "
+                        f"{_default_cache()})")
+    _demo_parser(sub, common)
+    _dataset_parser(sub, common)
     animate = sub.add_parser(
         "animate", help="move a drawn character by motion capture (AnimatedDrawings' files)",
         description="Read AnimatedDrawings' files (a scene config, or a character folder, "
         "a motion config and a retarget config), retarget the clip onto the character, pose "
         "it every frame and write the animation: .gif, .mp4, .png (animated), .webp, or a "
         "folder of PNG frames for a path without a suffix.",
-        formatter_class=_Help)
+        formatter_class=_Help, parents=[common])
     animate.add_argument("files", nargs="+", metavar="FILE",
                          help="SCENE.yaml OUT, or CHARACTER MOTION.yaml RETARGET.yaml OUT")
     animate.add_argument("--fold-free", action="store_true",
@@ -334,9 +368,9 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _demo_parser(sub) -> None:
+def _demo_parser(sub, common) -> None:
     demo = sub.add_parser("demo", help="deform the built-in horse and write a figure",
-                          formatter_class=_Help)
+                          formatter_class=_Help, parents=[common])
     demo.add_argument("--out", default="mvcjax-demo.png", help="PNG figure to write")
     demo.add_argument("--animation", default="mvcjax-demo.gif",
                       help="animation to write (.gif, .png, .webp or .mp4)")
@@ -352,14 +386,14 @@ def _demo_parser(sub) -> None:
                       help="how far the character's arm turns in the fold panels")
 
 
-def _dataset_parser(sub) -> None:
+def _dataset_parser(sub, common) -> None:
     dataset = sub.add_parser(
         "dataset", help="pose every sprite of a folder at random and write the pictures",
         description="Rig every sprite of a folder (pictures with alpha, or opaque pictures "
         "keyed from their corner colour), pose each at random within limits (no folds), "
         "and write the posed pictures, masks and handle targets (mvcjax.generate). Run it "
         "again with the same options to finish an interrupted dataset.",
-        formatter_class=_Help)
+        formatter_class=_Help, parents=[common])
     dataset.add_argument("sprites", help="a folder of sprites, or a label with --glyphs")
     dataset.add_argument("out", help="the folder to write")
     dataset.add_argument("--glyphs", default=None,
@@ -386,6 +420,7 @@ def _dataset_parser(sub) -> None:
 
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
+    _keep_compiled(args.compile_cache)
     commands = {"demo": _demo, "dataset": _dataset, "animate": _animate}
     return commands[args.command](args)
 

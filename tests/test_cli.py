@@ -72,3 +72,28 @@ def test_every_commands_help_names_each_default_once_and_helps_every_option(caps
         # "(default: X) (default: Y)": argparse's default after the help's own
         assert not re.search(r"\(default:[^()]*\) \(default:", text), text
         assert all(action.help for action in parser._actions), command
+
+
+def test_a_second_run_loads_what_the_first_compiled(tmp_path):
+    # The command line keeps its programs in JAX's persistent compilation cache: the
+    # second run of a command finds every program there and writes nothing new.
+    import os
+
+    import numpy as np
+
+    cache = tmp_path / "cache"
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+
+    def run(out):
+        subprocess.run([sys.executable, "-m", "mvcjax", "dataset", "glyphs", str(out),
+                        "--glyphs", "L", "--glyph-size", "40", "--poses", "2", "--batch",
+                        "2", "--size", "40", "--progress", "off", "--compile-cache",
+                        str(cache)], env=env, capture_output=True, text=True, check=True)
+        return {p.name: p.stat().st_mtime_ns for p in cache.iterdir()}
+
+    first = run(tmp_path / "first")
+    assert len(first) > 10
+    assert run(tmp_path / "second") == first
+    pictures = [np.load(next((tmp_path / name).rglob("*.npz"))) for name in ("first",
+                                                                                "second")]
+    assert all(np.array_equal(pictures[0][k], pictures[1][k]) for k in pictures[0].files)
