@@ -15,6 +15,7 @@ from .core import (
     NOT_FINITE_TARGETS,
     as_array,
     as_devices,
+    checked_on_entry,
     compiled_by,
     finite_when_traced,
     kind_of,
@@ -43,8 +44,9 @@ def _solve_chunked(rig: AbstractRig, targets, solver: AbstractSolver, chunk: int
     frames = targets.shape[0]
     chunk = min(chunk, frames)
     targets = _pad_frames(targets, chunk)
-    control = jax.lax.map(jax.vmap(lambda t: rig.solve(t, solver)),
-                          targets.reshape(-1, chunk, *targets.shape[1:]))
+    with checked_on_entry():  # by `_checked_frames`
+        control = jax.lax.map(jax.vmap(lambda t: rig.solve(t, solver)),
+                              targets.reshape(-1, chunk, *targets.shape[1:]))
     return jax.tree.map(lambda c: c.reshape(-1, *c.shape[2:])[:frames], control)
 
 
@@ -55,7 +57,8 @@ def _solve_in_sequence(rig: AbstractRig, targets, solver: AbstractSolver):
         control = rig.solve(t, solver, init=previous)
         return rig.joined(control), control
 
-    return jax.lax.scan(step, rig.start(targets[0]), targets)[1]
+    with checked_on_entry():  # the frames by `_checked_frames`, each start a solve's pose
+        return jax.lax.scan(step, rig.start(targets[0]), targets)[1]
 
 
 def _deform_chunked(rig: AbstractRig, targets, solver: AbstractSolver, chunk: int,

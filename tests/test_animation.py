@@ -85,6 +85,43 @@ def test_frames_with_nan_targets_are_named(horse_rig32):
         jax.block_until_ready(jax.jit(lambda t: mvcjax.deform_frames(horse_rig32, t))(frames))
 
 
+def _jaxprs_in(params) -> list:
+    """The jaxprs among an equation's parameters (a loop's body, a branch, a program)."""
+    found = []
+    for value in params.values():
+        for v in value if isinstance(value, (tuple, list)) else [value]:
+            if isinstance(v, (jax.extend.core.Jaxpr, jax.extend.core.ClosedJaxpr)):
+                found.append(getattr(v, "jaxpr", v))
+    return found
+
+
+def _callbacks(jaxpr, inside: str) -> tuple[int, int]:
+    """How many host callbacks `jaxpr` calls in all, and how many of them inside the
+    programs named `inside`."""
+    total = within = 0
+    for e in jaxpr.eqns:
+        here = "callback" in e.primitive.name
+        total, within = total + here, within
+        for sub in _jaxprs_in(e.params):
+            t, w = _callbacks(sub, inside)
+            total += t
+            within += t if e.params.get("name") == inside else w
+    return total, within
+
+
+@pytest.mark.parametrize("warm_start", [False, True])
+def test_frames_are_checked_once_where_they_enter(horse_rig32, warm_start):
+    # Traced frames are checked for NaN once, where they enter; the program that solves
+    # them holds no check of its own (each would be a host callback there, and JAX's
+    # persistent compilation cache keeps no program with one: every process would
+    # compile deform_frames again).
+    frames = some_frames(horse_rig32, 3)
+    jaxpr = jax.make_jaxpr(lambda t: mvcjax.deform_frames(horse_rig32, t,
+                                                          warm_start=warm_start))(frames)
+    entry, inside = _callbacks(jaxpr.jaxpr, "_deform_one_device")
+    assert entry > 0 and inside == 0, (entry, inside)
+
+
 def test_frames_into_a_donated_result_reuse_its_memory(horse_rig32, caplog):
     first, second = some_frames(horse_rig32, 6, seed=3), some_frames(horse_rig32, 6, seed=4)
     out = mvcjax.deform_frames(horse_rig32, first, chunk=4)

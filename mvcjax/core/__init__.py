@@ -13,6 +13,7 @@ from ._checks import (
     as_devices as as_devices,
     as_points as as_points,
     check_targets as check_targets,
+    checked_on_entry as checked_on_entry,
     checked_option as checked_option,
     finite_when_traced as finite_when_traced,
     is_real_number as is_real_number,

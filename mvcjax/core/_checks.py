@@ -3,6 +3,8 @@ what was wrong and the fix."""
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import functools
 import numbers
 
@@ -55,10 +57,29 @@ def as_array(value, name: str, what: str) -> np.ndarray:
                          "lengths).") from None
 
 
+# True while a compiled program traces work on arrays it checked where they entered it
+# (`deform_frames`' per-frame solves, on the frames it checked): those arrays are not
+# checked again there. A check inside a compiled program is a host callback, and JAX's
+# persistent compilation cache keeps no program that holds one.
+_CHECKED_ON_ENTRY = contextvars.ContextVar("checked_on_entry", default=False)
+
+
+@contextlib.contextmanager
+def checked_on_entry():
+    """Within: `finite_when_traced` checks nothing (the arrays were checked already)."""
+    token = _CHECKED_ON_ENTRY.set(True)
+    try:
+        yield
+    finally:
+        _CHECKED_ON_ENTRY.reset(token)
+
+
 def finite_when_traced(array, message: str):
     """`array`, raising `message` when it is run if it holds a NaN or an infinity: the
     check, for values traced under `jit` or `grad`, that a concrete value gets on the
-    host."""
+    host (none within `checked_on_entry`)."""
+    if _CHECKED_ON_ENTRY.get():
+        return array
     return eqx.error_if(array, ~jnp.all(jnp.isfinite(array)), message)
 
 
