@@ -48,7 +48,7 @@ def _keep_compiled(folder: str | None) -> None:
     if folder == "off" or os.environ.get("JAX_COMPILATION_CACHE_DIR"):
         return
     settings = {"jax_compilation_cache_dir": folder, **CACHE_SETTINGS}
-    if "jax" in sys.modules:  # main() called from Python, JAX loaded
+    if "jaxlib" in sys.modules:  # JAX loaded: main() called from Python (`jax` is lazy)
         for name, value in settings.items():
             jax.config.update(name, value)
     else:  # read when JAX loads, after the command has checked its input

@@ -1,6 +1,7 @@
 """The public face: what `import mvcjax` offers (`__all__`, at most 35 names), what moved
 to `mvcjax.advanced`, and docs/api.md documenting every public name of both."""
 
+import os
 import re
 import subprocess
 import sys
@@ -31,14 +32,20 @@ def test_the_top_level_is_all_and_small():
     assert public(mvcjax) - STAGES - {"lazy_loader"} == set(mvcjax.__all__)
 
 
-def test_import_mvcjax_and_help_load_no_jax():
-    # `import mvcjax` and `mvcjax --help` answer at once; JAX comes with the first name used.
+def test_import_mvcjax_and_help_load_no_jax(tmp_path):
+    # `import mvcjax`, `mvcjax --help` and a command refused for a missing file answer at
+    # once (the command line's compilation cache set up without loading JAX); JAX comes
+    # with the first name used.
     script = ("import sys, mvcjax, mvcjax.__main__ as cli\n"
               "assert 'jaxlib' not in sys.modules, 'import'\n"
               "try:\n    cli.main(['animate', '--help'])\nexcept SystemExit:\n    pass\n"
               "assert 'jaxlib' not in sys.modules, 'help'\n"
+              "assert cli.main(['animate', 'missing.yaml', 'out.gif']) != 0\n"
+              "assert 'jaxlib' not in sys.modules, 'refused'\n"
               "mvcjax.Weights\nassert 'jaxlib' in sys.modules\n")
-    subprocess.run([sys.executable, "-c", script], check=True, capture_output=True)
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    subprocess.run([sys.executable, "-c", script], check=True, capture_output=True,
+                   env={**env, "MVCJAX_COMPILE_CACHE": str(tmp_path)}, cwd=tmp_path)
 
 
 def test_every_public_name_is_in_the_api_reference():

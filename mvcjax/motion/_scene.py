@@ -107,8 +107,10 @@ class Scene:
         actors = []
         for entry in entries:
             clip = read_bvh(entry.motion.bvh, entry.motion.start, entry.motion.stop)
-            actors.append(Actor(Drawing.load(entry.character, **build),
-                                retarget(entry.character, clip, entry.motion, entry.retarget),
+            # Retargeted first: a config that names a joint the character lacks is
+            # refused before the drawing is read and rigged.
+            motion = retarget(entry.character, clip, entry.motion, entry.retarget)
+            actors.append(Actor(Drawing.load(entry.character, **build), motion,
                                 entry.retarget.start))
         return cls(tuple(sorted(actors, key=lambda a: a.start[2])))
 
