@@ -166,6 +166,30 @@ def directional_derivatives(f, x, seed=0, h=1e-5):
     return float(exact), float(approx)
 
 
+def _jaxprs_in(params) -> list:
+    """The jaxprs among an equation's parameters (a loop's body, a branch, a program)."""
+    found = []
+    for value in params.values():
+        for v in value if isinstance(value, (tuple, list)) else [value]:
+            if isinstance(v, (jax.extend.core.Jaxpr, jax.extend.core.ClosedJaxpr)):
+                found.append(getattr(v, "jaxpr", v))
+    return found
+
+
+def host_callbacks(jaxpr, inside: str) -> tuple[int, int]:
+    """How many host callbacks `jaxpr` calls in all, and how many of them inside the
+    programs named `inside`."""
+    total = within = 0
+    for e in jaxpr.eqns:
+        here = "callback" in e.primitive.name
+        total, within = total + here, within
+        for sub in _jaxprs_in(e.params):
+            t, w = host_callbacks(sub, inside)
+            total += t
+            within += t if e.params.get("name") == inside else w
+    return total, within
+
+
 def scipy_minimum(rig, targets, start, method="lm"):
     """The energy's minimum near `start` by scipy.optimize.least_squares (an independent
     reference): control vertices `(c, 2)` and the energy there, in the user's units (the

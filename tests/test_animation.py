@@ -11,6 +11,8 @@ import pytest
 
 import mvcjax
 
+from conftest import host_callbacks
+
 # Tests that compare with references to many digits, or the solvers' internals, are
 # marked float64; the others run in float32, as users do.
 # Two float32 computations of the horse's vertices (coordinates up to 480, rounded by up
@@ -85,30 +87,6 @@ def test_frames_with_nan_targets_are_named(horse_rig32):
         jax.block_until_ready(jax.jit(lambda t: mvcjax.deform_frames(horse_rig32, t))(frames))
 
 
-def _jaxprs_in(params) -> list:
-    """The jaxprs among an equation's parameters (a loop's body, a branch, a program)."""
-    found = []
-    for value in params.values():
-        for v in value if isinstance(value, (tuple, list)) else [value]:
-            if isinstance(v, (jax.extend.core.Jaxpr, jax.extend.core.ClosedJaxpr)):
-                found.append(getattr(v, "jaxpr", v))
-    return found
-
-
-def _callbacks(jaxpr, inside: str) -> tuple[int, int]:
-    """How many host callbacks `jaxpr` calls in all, and how many of them inside the
-    programs named `inside`."""
-    total = within = 0
-    for e in jaxpr.eqns:
-        here = "callback" in e.primitive.name
-        total, within = total + here, within
-        for sub in _jaxprs_in(e.params):
-            t, w = _callbacks(sub, inside)
-            total += t
-            within += t if e.params.get("name") == inside else w
-    return total, within
-
-
 @pytest.mark.parametrize("warm_start", [False, True])
 def test_frames_are_checked_once_where_they_enter(horse_rig32, warm_start):
     # Traced frames are checked for NaN once, where they enter; the program that solves
@@ -118,7 +96,7 @@ def test_frames_are_checked_once_where_they_enter(horse_rig32, warm_start):
     frames = some_frames(horse_rig32, 3)
     jaxpr = jax.make_jaxpr(lambda t: mvcjax.deform_frames(horse_rig32, t,
                                                           warm_start=warm_start))(frames)
-    entry, inside = _callbacks(jaxpr.jaxpr, "_deform_one_device")
+    entry, inside = host_callbacks(jaxpr.jaxpr, "_deform_one_device")
     assert entry > 0 and inside == 0, (entry, inside)
 
 

@@ -11,6 +11,8 @@ from skimage import data, draw, measure, morphology, transform
 import mvcjax
 from mvcjax import datasets
 
+from conftest import host_callbacks
+
 GROWN = mvcjax.advanced.GrownWindow()  # the renderer's window, grown to hold the pose
 
 
@@ -482,6 +484,32 @@ def test_a_pose_beyond_the_budget_raises(rig):
     small = mvcjax.Renderer.build(rig, size=(64, 64), budget=4)
     with pytest.raises(Exception, match="budget"):
         jax.block_until_ready(small(rig.shape_mesh.vertices))
+
+
+def test_frames_past_the_budget_are_refused_before_any_is_drawn(rig):
+    # `frames` counts each pose's pixel tiles on the host first and names the first past
+    # the budget; its drawing program then holds no check of its own (a host callback,
+    # which JAX's persistent compilation cache would not keep: each process would compile
+    # the renderer again).
+    from mvcjax.core import checked_on_entry
+    from mvcjax.rendering._render import _draw_batch, _tiles_needed
+
+    rest = np.asarray(rig.shape_mesh.vertices, np.float32)
+    centre = rest.mean(axis=0)
+    frames = np.stack([rest, rest, centre + 3.0 * (rest - centre)])
+    needed = np.asarray(_tiles_needed(mvcjax.Renderer.build(rig, size=(64, 64)), frames))
+    assert needed[0] == needed[1] < needed[2]
+    small = mvcjax.Renderer.build(rig, size=(64, 64), budget=int(needed[0]))
+    assert small.frames(frames[:2]).shape == (2, 64, 64, 4)
+    with pytest.raises(ValueError, match="frame 2 needs more pixel tiles than the renderer's"):
+        small.frames(frames, chunk=2)
+
+    def jaxpr():  # of a function of its own each time: a jaxpr traced anew
+        return jax.make_jaxpr(lambda f: _draw_batch(small, f, None))(frames).jaxpr
+
+    with checked_on_entry():
+        assert host_callbacks(jaxpr(), "_draw_batch") == (0, 0)
+    assert host_callbacks(jaxpr(), "_draw_batch")[1] > 0  # elsewhere, still checked
 
 
 def test_depth_from_handles_follows_the_mesh_to_the_nearest_handle(rig):

@@ -30,13 +30,14 @@ from ..core import (
     JittableModule,
     Programs,
     check_targets,
+    checked_on_entry,
     compiled_by,
     programs_field,
     to_device,
     whole_number,
 )
 from ..geometry import Shape, Skinning, image_mask, to_uint8
-from ..rendering import Checkerboard, MeshAlpha, Renderer, key_layout
+from ..rendering import Checkerboard, MeshAlpha, Renderer, key_layout, refuse_over_budget
 from ..rig import (
     AbstractRig,
     AbstractStart,
@@ -660,13 +661,18 @@ class CharacterRenderer(JittableModule):
         count = len(self.sizes)
         order = np.asarray(self.order if order is None else order)
         order = _check_order(np.broadcast_to(order, (frames, count)), count, self.names)
-        self.mesh._warn_if_clipped(np.concatenate(vertices, axis=1))
+        joined = np.concatenate(vertices, axis=1)
+        self.mesh._warn_if_clipped(joined)
         chunk = min(whole_number(chunk, "chunk", what=" of frames"), frames)
         out = np.empty((frames, *self.shape, 4), np.uint8)
-        for begin in range(0, frames, chunk):
-            take = np.minimum(np.arange(begin, begin + chunk), frames - 1)
+        takes = [np.minimum(np.arange(begin, begin + chunk), frames - 1)
+                 for begin in range(0, frames, chunk)]
+        refuse_over_budget(self.mesh, [joined[take].astype(self.window.dtype)
+                                       for take in takes])
+        for begin, take in zip(range(0, frames, chunk), takes):
             batch = tuple(jnp.asarray(v[take], self.window.dtype) for v in vertices)
-            pictures = _draw_character_batch(self, batch, order[take])
+            with checked_on_entry():  # the budget, above
+                pictures = _draw_character_batch(self, batch, order[take])
             done = min(chunk, frames - begin)
             out[begin:begin + done] = to_uint8(np.asarray(pictures[:done]))
         return out

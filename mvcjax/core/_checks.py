@@ -66,7 +66,7 @@ _CHECKED_ON_ENTRY = contextvars.ContextVar("checked_on_entry", default=False)
 
 @contextlib.contextmanager
 def checked_on_entry():
-    """Within: `finite_when_traced` checks nothing (the arrays were checked already)."""
+    """Within: `check_when_run` checks nothing (what it checks was checked already)."""
     token = _CHECKED_ON_ENTRY.set(True)
     try:
         yield
@@ -74,13 +74,22 @@ def checked_on_entry():
         _CHECKED_ON_ENTRY.reset(token)
 
 
-def finite_when_traced(array, message: str):
-    """`array`, raising `message` when it is run if it holds a NaN or an infinity: the
-    check, for values traced under `jit` or `grad`, that a concrete value gets on the
-    host (none within `checked_on_entry`)."""
+def checks_left_out() -> bool:
+    """Whether this is within `checked_on_entry` (a program traced here is one of its own)."""
+    return _CHECKED_ON_ENTRY.get()
+
+
+def check_when_run(array, failed, message: str):
+    """`array`, raising `message` when the program runs if `failed` (traced) is true: the
+    check that a concrete value gets on the host (none within `checked_on_entry`)."""
     if _CHECKED_ON_ENTRY.get():
         return array
-    return eqx.error_if(array, ~jnp.all(jnp.isfinite(array)), message)
+    return eqx.error_if(array, failed, message)
+
+
+def finite_when_traced(array, message: str):
+    """`array`, raising `message` when it is run if it holds a NaN or an infinity."""
+    return check_when_run(array, ~jnp.all(jnp.isfinite(array)), message)
 
 
 def is_whole_number(value) -> bool:

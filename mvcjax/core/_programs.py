@@ -25,6 +25,8 @@ from jax._src.core import is_concrete  # public as jax.core.is_concrete, depreca
 from jax._src.interpreters.ad import JVPTracer, LinearizeTracer  # no public names
 from jax._src.interpreters.batching import BatchTracer  # no public name
 
+from ._checks import checks_left_out
+
 
 class _Static(eqx.Module):
     """A program's outputs that are not arrays, carried through `jit` as static data."""
@@ -54,7 +56,7 @@ class _Compiled:
 
     def __init__(self, fn: Callable, donate: str | None):
         def run(arrays, donated, static):
-            args, kwargs = _join(arrays, static)
+            args, kwargs = _join(arrays, static[0])
             out = fn(*args, **kwargs, **({donate: donated} if donate else {}))
             dynamic, rest = eqx.partition(out, eqx.is_array)
             return dynamic, _Static(rest)
@@ -107,6 +109,8 @@ class Programs:
         kwargs = dict(kwargs)
         donated = kwargs.pop(donate) if donate else None
         arrays, static = _split((args, kwargs))
+        # Traced within `checked_on_entry`, a program leaves its checks out: another one.
+        static = (static, checks_left_out())
         # The sizes by their hash, so that no key holds on to a structure; two sizes of
         # one hash would share a `jax.jit`, which tells them apart itself.
         key = (fn, donate, hash((static, jax.tree.map(lambda a: (a.shape, a.dtype), donated),

@@ -19,6 +19,7 @@ from ._render import (
     fit_window as fit_window,
     in_window as in_window,
     key_layout as key_layout,
+    refuse_over_budget as refuse_over_budget,
     render as render,
     spread_from_handles as spread_from_handles,
     to_pixels as to_pixels,

@@ -43,6 +43,8 @@ from ..core import (
     Programs,
     as_devices,
     as_points,
+    check_when_run,
+    checked_on_entry,
     checked_option,
     compiled_by,
     kind_of,
@@ -531,6 +533,8 @@ class Renderer(JittableModule):
         levels = self._checked_levels(levels, len(frames))
         out = np.empty((len(frames), *self.shape, 4), np.uint8)
         dtype = self.texture.dtype
+        refuse_over_budget(self, [_padded(frames[begin:begin + chunk], chunk).astype(dtype)
+                                  for begin in range(0, len(frames), chunk)])
         with progress_bar(len(frames), progress, "rendering") as bar:
             for first in range(0, len(frames), chunk * len(copies)):
                 drawn = []
@@ -540,7 +544,8 @@ class Renderer(JittableModule):
                                                                chunk)
                     part, level = jax.device_put((part, level), None if devices is None
                                                  else renderer.texture.sharding)
-                    drawn.append((begin, _draw_batch(renderer, part, level)))
+                    with checked_on_entry():  # the budget, above
+                        drawn.append((begin, _draw_batch(renderer, part, level)))
                 for begin, pictures in drawn:
                     done = min(chunk, len(frames) - begin)
                     # Cut on the host: an eager slice compiles a program for every size.
@@ -944,12 +949,8 @@ def _tile_table(renderer: Renderer, tri, rows: int, cols: int):
     tiles = across[:, 0] * across[:, 1]
     end = jnp.cumsum(tiles)
     total = end[-1]
-    tri = eqx.error_if(
-        tri, total.astype(jnp.float32) > renderer.budget,
-        "the pose needs more pixel tiles than the renderer's budget (a zoomed-in window or "
-        "a strongly stretched mesh): it would take long to draw. Build the Renderer with a "
-        "larger budget= if that is meant, or draw a wider window.",
-    )
+    tri = check_when_run(tri, total.astype(jnp.float32) > renderer.budget,
+                         f"the pose {_OVER_BUDGET}")
     normal, offset = _edge_distances(tri)
     boundary = renderer.boundary & renderer.antialias
     far = jnp.asarray(1e6, tri.dtype)
@@ -962,6 +963,35 @@ def _tile_table(renderer: Renderer, tri, rows: int, cols: int):
         across[:, :1].astype(tri.dtype), (end - tiles)[:, None].astype(tri.dtype),
     ], axis=1)
     return table, end, total
+
+
+# What a pose past the renderer's budget is told.
+_OVER_BUDGET = ("needs more pixel tiles than the renderer's budget (a zoomed-in window or a "
+                "strongly stretched mesh): it would take long to draw. Build the Renderer "
+                "with a larger budget= if that is meant, or draw a wider window.")
+
+
+@compiled_by()
+def _tiles_needed(renderer: Renderer, frames):
+    """`(frames,)` the pixel tiles each pose needs in the renderer's window."""
+    rows, cols = renderer.shape
+
+    def needed(vertices):
+        tri = to_pixels(vertices, renderer.window, rows, cols)[renderer.faces]
+        return _tile_table(renderer, tri, rows, cols)[2]  # the rest is left unused
+
+    with checked_on_entry():  # what this program computes is the check
+        return jax.vmap(needed)(frames)
+
+
+def refuse_over_budget(renderer: Renderer, chunks: list) -> None:
+    """Refuse, on the host, poses (`chunks` of frames, `(chunk, n, 2)` each) that need
+    more pixel tiles than `renderer`'s budget: drawn within `checked_on_entry`, they are
+    not checked again as they are drawn."""
+    needed = np.concatenate([np.asarray(_tiles_needed(renderer, c)) for c in chunks])
+    over = np.flatnonzero(needed > renderer.budget)
+    if len(over):
+        raise ValueError(f"frame {over[0]} {_OVER_BUDGET}")
 
 
 def _chunk_candidates(renderer: Renderer, table, end, total, face_bits: int, cols: int,
