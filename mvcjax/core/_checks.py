@@ -57,10 +57,10 @@ def as_array(value, name: str, what: str) -> np.ndarray:
                          "lengths).") from None
 
 
-# True while a compiled program traces work on arrays it checked where they entered it
-# (`deform_frames`' per-frame solves, on the frames it checked): those arrays are not
-# checked again there. A check inside a compiled program is a host callback, and JAX's
-# persistent compilation cache keeps no program that holds one.
+# True while a program is traced whose inputs were checked on the host where they
+# entered (`deform_frames`' per-frame solves; `Renderer.frames`' drawing, its tile
+# budget counted first): their checks are left out. A check inside a compiled program is
+# a host callback, and JAX's persistent compilation cache keeps no program that holds one.
 _CHECKED_ON_ENTRY = contextvars.ContextVar("checked_on_entry", default=False)
 
 
