@@ -34,7 +34,7 @@ PROGRESS = ("a progress bar on standard error (default: on for a long run on a t
 
 
 # JAX's persistent compilation cache, as `jax.config` names its settings: every program,
-# however quick to compile (a command compiles hundreds, most in milliseconds).
+# however quick to compile (a command compiles many small ones).
 CACHE_SETTINGS = {"jax_persistent_cache_min_compile_time_secs": 0.0,
                   "jax_persistent_cache_min_entry_size_bytes": 0}
 

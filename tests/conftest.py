@@ -30,7 +30,7 @@ if _CACHE != "off":
 
 # Most of the suite's time is XLA compiling programs that then run for milliseconds: the
 # suite compiles them without LLVM's optimisations (`MVCJAX_TEST_XLA=optimised` keeps
-# them), under half the CPU per program. The operations and their float semantics are
+# them), at a fraction of the CPU. The operations and their float semantics are
 # the same; only the order of some roundings differs, as on another machine, and the
 # verdicts that hang on rounding (convergence claimed, gradients against finite
 # differences) are checked under both (`test_float32.py`).
@@ -181,8 +181,7 @@ def host_callbacks(jaxpr, inside: str) -> tuple[int, int]:
     programs named `inside`."""
     total = within = 0
     for e in jaxpr.eqns:
-        here = "callback" in e.primitive.name
-        total, within = total + here, within
+        total += "callback" in e.primitive.name
         for sub in _jaxprs_in(e.params):
             t, w = host_callbacks(sub, inside)
             total += t

@@ -988,7 +988,8 @@ def refuse_over_budget(renderer: Renderer, chunks: list) -> None:
     """Refuse, on the host, poses (`chunks` of frames, `(chunk, n, 2)` each) that need
     more pixel tiles than `renderer`'s budget: drawn within `checked_on_entry`, they are
     not checked again as they are drawn."""
-    needed = np.concatenate([np.asarray(_tiles_needed(renderer, c)) for c in chunks])
+    counts = [_tiles_needed(renderer, c) for c in chunks]  # all dispatched, then read
+    needed = np.concatenate([np.asarray(c) for c in counts])
     over = np.flatnonzero(needed > renderer.budget)
     if len(over):
         raise ValueError(f"frame {over[0]} {_OVER_BUDGET}")
