@@ -199,7 +199,7 @@ def test_a_new_term_is_one_declaration(horse, factor):
     jac = jax.jit(jax.jacfwd(fun))
     start = np.asarray(rig.frame.to_local(rig.start(targets))).ravel()
     ref = scipy.optimize.least_squares(lambda x: np.asarray(fun(x)), start,
-                                       jac=lambda x: np.asarray(jac(x)), method="lm",
+                                       jac=lambda x: np.asarray(jac(x)), method="trf",
                                        xtol=1e-15, ftol=1e-15, gtol=1e-15)
     scale = float(rig.frame.scale)
     reference = 2 * ref.cost * scale**2

@@ -83,7 +83,7 @@ def test_a_placed_pin_holds_the_shape_where_it_is_dragged(horse_rig):
     jac = jax.jit(jax.jacfwd(fun))
     start = np.asarray(rig.frame.to_local(rig.start(targets))).ravel()
     ref = scipy.optimize.least_squares(lambda x: np.asarray(fun(x)), start,
-                                       jac=lambda x: np.asarray(jac(x)), method="lm",
+                                       jac=lambda x: np.asarray(jac(x)), method="trf",
                                        xtol=1e-15, ftol=1e-15, gtol=1e-15)
     _, info = rig.solve(targets, mvcjax.GaussNewton(max_steps=200), return_info=True)
     assert bool(info.converged)
