@@ -12,7 +12,9 @@ demo). Each is timed in a new Python process, so
 nothing compiled by another case helps it: "cold" with no persistent cache, "cached" in a
 second process that finds what the first wrote to a persistent cache directory
 (`jax_compilation_cache_dir`, see the guide). The building of the rig is outside the
-timed region; the first call, compiling included, is inside. Targets (seconds, on the
+timed region; the first call, compiling included, is inside. After it, the size of the
+program that call runs: the operations of its StableHLO module, as `jax.jit` lowers it
+(what XLA then compiles; a whole command has no one program). Targets (seconds, on the
 2-core CPU that CI runs on): `FoldFree` 3, the other solvers 1.5, a renderer 1; the
 README's example 10, its demo 10, its first command (install included) 40.
 
@@ -24,6 +26,7 @@ from __future__ import annotations
 import json
 import os
 import pathlib
+import re
 import subprocess
 import sys
 import tempfile
@@ -89,14 +92,38 @@ def _prepared(case: str):
     return lambda: rig.deform(targets, solver)
 
 
+def stablehlo_ops(fn) -> int:
+    """The size of the program `fn` runs: the operations of its StableHLO module (nested
+    regions and called functions included), lowered by `jax.jit` (the library's own
+    programs are inlined in a caller's trace)."""
+    import jax
+
+    text = jax.jit(fn).lower().as_text()
+    return sum(1 for line in text.splitlines()
+               if re.match(r"\s*(%[^=]+= )?\"?(stablehlo|chlo)\.", line))
+
+
 def child(case: str) -> None:
-    """Run in the fresh process: print the first call's seconds as JSON."""
+    """Run in the fresh process: print the first call's seconds, and then the size of
+    its program, as JSON."""
     import jax
 
     first = _prepared(case)
     start = time.perf_counter()
     jax.block_until_ready(first())
-    print(json.dumps({"first_s": time.perf_counter() - start}))
+    seconds = time.perf_counter() - start
+    program = _picture() if case == "renderer" else first
+    print(json.dumps({"first_s": seconds, "hlo_ops": stablehlo_ops(program)}))
+
+
+def _picture():
+    """The renderer case's program, its picture: the renderer built on the host first
+    (a trace cannot build one)."""
+    import mvcjax
+
+    rig, _ = _horse()
+    renderer = mvcjax.Renderer.build(rig, size=(256, 256))
+    return lambda: renderer(rig.shape_mesh.vertices)
 
 
 def readme_blocks(kind: str) -> list[str]:
@@ -125,7 +152,9 @@ def whole_command(case: str, folder: str) -> list[str]:
     return ["bash", "-c", first.replace("pip install .", f"pip install -q {ROOT}")]
 
 
-def run_case(case: str, cache_dir: str | None) -> float:
+def run_case(case: str, cache_dir: str | None) -> tuple[float, int | None]:
+    """The first call's seconds in a fresh process, and its program's StableHLO
+    operations (None for a whole command)."""
     env = dict(os.environ)
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
     if cache_dir is not None:
@@ -137,38 +166,37 @@ def run_case(case: str, cache_dir: str | None) -> float:
             command = whole_command(case, folder)
             start = time.perf_counter()
             subprocess.run(command, env=env, cwd=folder, check=True, capture_output=True)
-            return time.perf_counter() - start
+            return time.perf_counter() - start, None
     out = subprocess.run([sys.executable, __file__, "--child", case], env=env, check=True,
                          capture_output=True, text=True).stdout
-    return json.loads(out.strip().splitlines()[-1])["first_s"]
+    result = json.loads(out.strip().splitlines()[-1])
+    return result["first_s"], result["hlo_ops"]
 
 
 def measure(cases, cached_cases) -> list[dict]:
     rows = []
     for case in cases:
-        cold = run_case(case, None)
-        if case not in cached_cases:  # FIRST_COMMAND: a fresh environment, no cache
-            rows.append({"case": case, "cold_s": cold, "cached_s": None,
-                         "target_s": TARGETS_S.get(case)})
-            print(rows[-1], flush=True)
-            continue
-        with tempfile.TemporaryDirectory() as cache:
-            run_case(case, cache)  # fills the cache
-            cached = run_case(case, cache)
-        rows.append({"case": case, "cold_s": cold, "cached_s": cached,
+        cold, ops = run_case(case, None)
+        cached = None
+        if case in cached_cases:  # not FIRST_COMMAND: a fresh environment, no cache
+            with tempfile.TemporaryDirectory() as cache:
+                run_case(case, cache)  # fills the cache
+                cached, _ = run_case(case, cache)
+        rows.append({"case": case, "cold_s": cold, "cached_s": cached, "hlo_ops": ops,
                      "target_s": TARGETS_S.get(case)})
         print(rows[-1], flush=True)
     return rows
 
 
 def format_table(data: dict) -> str:
-    lines = ["| first call | cold (s) | with the persistent cache (s) | target (s) |",
-             "|---|---|---|---|"]
+    lines = ["| first call | cold (s) | with the persistent cache (s) | target (s) | "
+             "program (StableHLO ops) |", "|---|---|---|---|---|"]
     for r in data["rows"]:
         target = "" if r["target_s"] is None else (
             f"{r['target_s']:g} ({'met' if r['cold_s'] <= r['target_s'] else 'missed'})")
         cached = "-" if r["cached_s"] is None else f"{r['cached_s']:.2f}"
-        lines.append(f"| {r['case']} | {r['cold_s']:.2f} | {cached} | {target} |")
+        ops = "-" if r.get("hlo_ops") is None else f"{r['hlo_ops']:,}"
+        lines.append(f"| {r['case']} | {r['cold_s']:.2f} | {cached} | {target} | {ops} |")
     return "\n".join(lines)
 
 

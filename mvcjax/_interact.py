@@ -93,12 +93,6 @@ def _segments(points: np.ndarray, pairs: np.ndarray) -> tuple[np.ndarray, np.nda
     return segments[..., 0].ravel(), segments[..., 1].ravel()
 
 
-def _signed_areas(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Twice each triangle's signed area, on the host (`signed_areas` for numpy)."""
-    a, b, c = (points[faces[:, i]] for i in range(3))
-    return (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
-
-
 def _triangle_codes(count: int) -> np.ndarray:
     """Path codes of `count` closed triangles, four vertices each."""
     from matplotlib.path import Path
@@ -212,7 +206,7 @@ class Posing:
         self.show_folds = bool(show_folds)
         rest = np.asarray(rig.shape_mesh.vertices, np.float64)
         self._faces = np.asarray(rig.shape_mesh.faces, np.int64)
-        rest_sign = np.sign(_signed_areas(rest, self._faces)).astype(np.int8)
+        rest_sign = np.sign(signed_areas(rest, self._faces)).astype(np.int8)
         renderer = self._set_view(rig, rest, ax, window, size, margin, renderer, image,
                                   render_options)
         # The renderer and solver are constants of the session's one program; the rig is

@@ -30,6 +30,7 @@ from .geometry import (
     byte_values,
     check_channels,
     check_values,
+    ring_area,
     to_bytes,
     to_uint8,
 )
@@ -393,11 +394,6 @@ def _write_mp4(path, items, fps, quality, matte_rgb, progress) -> None:
 # ---- outlines -------------------------------------------------------------------------
 
 
-def _signed_area(ring: np.ndarray) -> float:
-    x, y = ring[:, 0], ring[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
-
-
 def _as_faces(faces, vertex_count: int) -> np.ndarray:
     array = np.asarray(faces)
     if array.dtype.kind not in "iu":
@@ -435,7 +431,7 @@ def outline_rings(vertices: Any, faces: Any) -> list[np.ndarray]:
     points = as_points(vertices, "vertices")
     loops = boundary_loops(_as_faces(faces, len(points)))
     rings = [points[loop] for loop in loops]
-    return sorted(rings, key=_signed_area, reverse=True)
+    return sorted(rings, key=ring_area, reverse=True)
 
 
 def _as_rings(outline) -> list[np.ndarray]:

@@ -23,9 +23,10 @@ def test_a_solver_must_be_an_object(horse_rig32, solver):
     t = drag(horse_rig32, np.zeros((5, 2)))
     renderer = mvcjax.Renderer.build(horse_rig32, size=(16, 16))
     picture = np.zeros((16, 16, 4), np.float32)
-    expected = {"GaussNewton": "not the string 'GaussNewton'; write mvcjax.GaussNewton()",
+    expected = {"GaussNewton": "the string 'GaussNewton' (options are objects); write "
+                               "solver=mvcjax.GaussNewton()",
                 3: "such as mvcjax.FixedG()"}.get(solver, "the class GaussNewton; write "
-                                                          "mvcjax.GaussNewton()")
+                                                          "solver=mvcjax.GaussNewton()")
     for call in (lambda: horse_rig32.deform(t, solver),
                  lambda: mvcjax.deform_frames(horse_rig32, jnp.stack([t, t]), solver=solver),
                  lambda: mvcjax.fit_targets(horse_rig32, renderer, picture, solver=solver)):

@@ -12,6 +12,7 @@ from PIL import Image
 import mvcjax
 from mvcjax import export
 from mvcjax.core import _progress
+from mvcjax.geometry import ring_area
 
 COUNT, ROWS, COLS = 5, 24, 32
 
@@ -224,7 +225,7 @@ def test_svg_of_a_deformed_mesh(tmp_path):
     deformed = rig.deform(rig.handle_positions + np.array([[0.0, 0.0], [0.0, 10.0]]))
     rings = export.outline_rings(deformed, rig.shape_mesh.faces)
     assert len(rings) == 2
-    assert export._signed_area(rings[0]) > 0 > export._signed_area(rings[1])
+    assert ring_area(rings[0]) > 0 > ring_area(rings[1])
     export.write_svg(tmp_path / "d.svg", rings, fill=None, stroke="#ff0000", width=400)
     back, root, path = svg_rings(tmp_path / "d.svg")
     for ring, want in zip(back, rings):

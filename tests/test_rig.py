@@ -265,7 +265,7 @@ def test_options_as_objects_build_what_the_old_spellings_do(horse, horse_rig):
     ("skinning", mvcjax.advanced.BarycentricSkinning, "mvcjax.advanced.BarycentricSkinning()"),
 ])
 def test_older_spellings_are_refused_with_the_object_to_write(horse, option, spelling, fix):
-    with pytest.raises(TypeError, match=rf"{option} must be .*; write {re.escape(fix)}"):
+    with pytest.raises(TypeError, match=rf"{option} must be .*; write {option}={re.escape(fix)}"):
         mvcjax.Rig.build(horse, datasets.horse_handles(), **{option: spelling})
     for removed in ("control_spacing", "margin"):
         with pytest.raises(TypeError, match=rf"{removed}= was removed; write "

@@ -76,7 +76,7 @@ def test_removed_cg_keywords_say_what_to_write(solver, key):
 ])
 @pytest.mark.float64
 def test_a_solver_named_as_a_string_or_class_is_answered_where_it_lives(stick, spelling, fix):
-    with pytest.raises(TypeError, match=rf"write {re.escape(fix)}"):
+    with pytest.raises(TypeError, match=rf"write solver={re.escape(fix)}"):
         stick.deform(stick.handle_positions, solver=spelling)
 
 

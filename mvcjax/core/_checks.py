@@ -140,13 +140,30 @@ def refuse_string(name: str, value, objects: dict[str, str]) -> None:
                         f"{name}={objects[value]}.")
 
 
-def checked_option(name: str, value, kind: type, objects: dict[str, str]):
-    """`value` if it is a `kind` (an option object); otherwise a TypeError naming the
-    objects to write: for a string that once named one (a key of `objects`), that one."""
+def checked_option(name: str, value, kind: type, objects: dict[str, str], *,
+                   described: str | None = None, default: str | None = None,
+                   module: str = "mvcjax.advanced"):
+    """`value` if it is a `kind` (an option object); otherwise a TypeError that says
+    what to write: for a string that names one (a key of `objects`: an option's name
+    from before options were objects, or a class's name), that object; for the class
+    itself, an instance (of `module`, or of the class's `_MODULE`); for None, the
+    `default` object, which leaving the option out gives. `described` lists what the
+    option takes (by default, the objects)."""
     if isinstance(value, kind):
         return value
-    refuse_string(name, value, objects)
-    raise TypeError(f"{name} must be {' or '.join(objects.values())}, got {value!r}.")
+    fix, got = None, repr(value)
+    if isinstance(value, str):
+        fix, got = objects.get(value), f"the string {value!r} (options are objects)"
+    elif isinstance(value, type) and issubclass(value, kind):
+        fix = f"{getattr(value, '_MODULE', module)}.{value.__name__}()"
+        got = f"the class {value.__name__}"
+    elif value is None and default is not None:
+        fix = f"{default} (the default: leave {name} out)"
+    if len(got) > 80:
+        got = f"a {type(value).__name__}"
+    described = described or " or ".join(dict.fromkeys(objects.values()))
+    raise TypeError(f"{name} must be {described}, got {got}"
+                    + (f"; write {name}={fix}." if fix else "."))
 
 
 def as_devices(devices) -> list | None:

@@ -29,7 +29,7 @@ import scipy.sparse
 import scipy.sparse.linalg
 from jaxtyping import Array, ArrayLike, Complex, Float, Int
 
-from ..core import compiled_by, to_device
+from ..core import checked_option, compiled_by, to_device
 from ._energy import Energy
 from ._stencils import (
     Blocks,
@@ -599,16 +599,9 @@ class FactorBySize(AbstractFactorMethod):
 def as_factor_method(factor) -> AbstractFactorMethod:
     """The factor option of `Rig.build`: an `AbstractFactorMethod`, or a TypeError that
     names the object to write (for a name such as `"sparse"` too)."""
-    if isinstance(factor, AbstractFactorMethod):
-        return factor
-    fix = {"dense": "DenseG()", "sparse": "SparseLU()"}.get(
-        factor if isinstance(factor, str) else None)
-    if factor is None:
-        fix = "FactorBySize() (the default; leave factor out)"
-    elif isinstance(factor, type) and issubclass(factor, AbstractFactorMethod):
-        fix = f"{factor.__name__}()"
-    raise TypeError(
-        "factor must be a factor object, mvcjax.advanced.DenseG(), "
-        f"mvcjax.advanced.SparseLU() or mvcjax.advanced.FactorBySize(), got {factor!r}"
-        + (f"; write mvcjax.advanced.{fix}." if fix else ".")
-    )
+    return checked_option(
+        "factor", factor, AbstractFactorMethod,
+        {"dense": "mvcjax.advanced.DenseG()", "sparse": "mvcjax.advanced.SparseLU()"},
+        described="a factor object, mvcjax.advanced.DenseG(), mvcjax.advanced.SparseLU() "
+                  "or mvcjax.advanced.FactorBySize()",
+        default="mvcjax.advanced.FactorBySize()")

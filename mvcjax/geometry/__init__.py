@@ -4,15 +4,15 @@ libraries at build time, JAX for what runs per frame."""
 
 from ._coordinates import (
     barycentric_coordinates as barycentric_coordinates,
-    cross as cross,
     locate_points as locate_points,
     mean_value_coordinates as mean_value_coordinates,
+    ring_area as ring_area,
+    signed_areas as signed_areas,
 )
 from ._folds import (
     area_along as area_along,
     first_flat as first_flat,
     inverted_count as inverted_count,
-    signed_areas as signed_areas,
 )
 from ._image import (
     CornerColour as CornerColour,

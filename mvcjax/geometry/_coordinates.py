@@ -12,6 +12,26 @@ def cross(a, b):
     return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
 
+def triangle_edges(vertices, faces):
+    """Each triangle's two edges from its first corner, `(*batch, f, 2)` each, for
+    `(*batch, n, 2)` vertices (numpy or JAX arrays)."""
+    first = vertices[..., faces[:, 0], :]
+    return vertices[..., faces[:, 1], :] - first, vertices[..., faces[:, 2], :] - first
+
+
+def signed_areas(vertices: Float[ArrayLike, "*batch n 2"],
+                 faces: Int[ArrayLike, "f 3"]) -> Float[ArrayLike, "*batch f"]:
+    """Twice each triangle's signed area, positive for a counter-clockwise triangle, for
+    `(*batch, n, 2)` vertices: numpy in, numpy out; JAX in, JAX out."""
+    return cross(*triangle_edges(vertices, faces))
+
+
+def ring_area(ring: Float[ArrayLike, "k 2"]) -> float:
+    """The signed area of a closed polygon (shoelace), positive counter-clockwise."""
+    x, y = np.asarray(ring, np.float64).T
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+
+
 def mean_value_coordinates(
     points: Float[ArrayLike, "n 2"],
     polygons: Float[ArrayLike, "n k 2"],

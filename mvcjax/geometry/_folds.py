@@ -5,19 +5,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
-
-def _corners(vertices: Float[Array, "n 2"], faces: Int[Array, "f 3"]):
-    first = vertices[faces[:, 0]]
-    return vertices[faces[:, 1]] - first, vertices[faces[:, 2]] - first
-
-
-def _cross(a: Float[Array, "f 2"], b: Float[Array, "f 2"]) -> Float[Array, " f"]:
-    return a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
-
-
-def signed_areas(vertices: Float[Array, "n 2"], faces: Int[Array, "f 3"]) -> Float[Array, " f"]:
-    """Twice each triangle's signed area: positive for a counter-clockwise triangle."""
-    return _cross(*_corners(vertices, faces))
+from ._coordinates import cross, signed_areas, triangle_edges
 
 
 def inverted_count(vertices: Float[Array, "n 2"], faces: Int[Array, "f 3"],
@@ -33,9 +21,9 @@ def area_along(vertices: Float[Array, "n 2"], direction: Float[Array, "n 2"],
                faces: Int[Array, "f 3"]) -> tuple[Array, Array, Array]:
     """Twice each triangle's signed area along the line `vertices + t direction`, as
     the coefficients `(a, b, c)` of `a + b t + c t^2`."""
-    e1, e2 = _corners(vertices, faces)
-    d1, d2 = _corners(direction, faces)
-    return _cross(e1, e2), _cross(e1, d2) + _cross(d1, e2), _cross(d1, d2)
+    e1, e2 = triangle_edges(vertices, faces)
+    d1, d2 = triangle_edges(direction, faces)
+    return cross(e1, e2), cross(e1, d2) + cross(d1, e2), cross(d1, d2)
 
 
 def first_flat(a: Float[Array, " f"], b: Float[Array, " f"], c: Float[Array, " f"]

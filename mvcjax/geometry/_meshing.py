@@ -8,7 +8,7 @@ import triangle
 from jaxtyping import Float, Int
 from scipy.spatial import cKDTree
 
-from ._coordinates import cross
+from ._coordinates import cross, signed_areas
 from ._shape import Shape
 
 
@@ -149,8 +149,7 @@ def hilbert_order(points: Float[np.ndarray, "n 2"], bits: int = 16) -> Int[np.nd
 
 
 def counter_clockwise(verts, faces):
-    a, b, c = (verts[faces[:, i]] for i in range(3))
-    signed = cross(b - a, c - a)
+    signed = signed_areas(verts, faces)
     faces = faces.copy()
     faces[signed < 0] = faces[signed < 0][:, [0, 2, 1]]
     return faces

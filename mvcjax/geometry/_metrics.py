@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from jaxtyping import ArrayLike, Float, Int
 
-from ._coordinates import cross
+from ._coordinates import signed_areas
 from ._topology import face_pairs
 
 
@@ -58,11 +58,8 @@ def flipped_triangles(
     counts for poses `(*frames, n, 2)`."""
     faces = np.asarray(faces)
 
-    def signed(v):
-        v = np.asarray(v, np.float64)
-        corners = v[..., faces, :]  # (..., f, 3, 2)
-        return cross(corners[..., 1, :] - corners[..., 0, :],
-                     corners[..., 2, :] - corners[..., 0, :])
+    def signs(v):
+        return np.sign(signed_areas(np.asarray(v, np.float64), faces))
 
-    counts = np.sum(np.sign(signed(rest)) != np.sign(signed(deformed)), axis=-1)
+    counts = np.sum(signs(rest) != signs(deformed), axis=-1)
     return int(counts) if counts.ndim == 0 else counts

@@ -12,6 +12,7 @@ import shapely.ops
 from jaxtyping import Float
 
 from ..core import as_array, as_points, is_real_number, is_whole_number, kind_of
+from ._coordinates import ring_area
 from ._image import image_mask, is_pil_image
 
 
@@ -27,11 +28,6 @@ def _as_ring(points, name: str) -> np.ndarray:
     if len(ring) < 3:
         raise ValueError(f"{name} needs at least 3 distinct vertices, got {len(ring)}.")
     return ring
-
-
-def _signed_area(ring: np.ndarray) -> float:
-    x, y = ring[:, 0], ring[:, 1]
-    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
 
 
 def _where(point, rings, normalised, centre, size) -> list[float]:
@@ -298,8 +294,8 @@ class Shape:
         _check_rings_apart([outer, *holes], normalised, centre, size)
         # Orientation from the signed areas, so that the stored rings are the given
         # coordinates themselves (not mapped there and back).
-        self.outer = outer if _signed_area(normalised[0]) > 0 else outer[::-1].copy()
-        self.holes = tuple(h if _signed_area(n) < 0 else h[::-1].copy()
+        self.outer = outer if ring_area(normalised[0]) > 0 else outer[::-1].copy()
+        self.holes = tuple(h if ring_area(n) < 0 else h[::-1].copy()
                            for h, n in zip(holes, normalised[1:]))
 
     @classmethod

@@ -15,7 +15,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ..core import JittableModule, materialise, only_batched, to_device, with_batching_rule
+from ..core import (
+    JittableModule,
+    checked_option,
+    materialise,
+    only_batched,
+    to_device,
+    with_batching_rule,
+)
 from . import _coordinates as coords, _topology as topology
 from ._local_frame import Frame
 
@@ -112,18 +119,14 @@ class BlendedMVCSkinning(AbstractSkinning):
 def as_skinning(skinning) -> AbstractSkinning:
     """The skinning option of `Rig.build`: an `AbstractSkinning`, or a TypeError that
     names the object to write (for a short name such as `"mvc"` too)."""
-    if isinstance(skinning, AbstractSkinning):
-        return skinning
-    names = {"blended": BlendedMVCSkinning, "mvc": MVCSkinning,
-             "barycentric": BarycentricSkinning}
-    kind = names.get(skinning) if isinstance(skinning, str) else None
-    if isinstance(skinning, type) and issubclass(skinning, AbstractSkinning):
-        kind = skinning
-    raise TypeError(
-        "skinning must be a skinning object, mvcjax.advanced.BlendedMVCSkinning(), "
-        "mvcjax.advanced.MVCSkinning() or mvcjax.advanced.BarycentricSkinning(), got "
-        f"{skinning!r}" + (f"; write mvcjax.advanced.{kind.__name__}()." if kind else ".")
-    )
+    return checked_option(
+        "skinning", skinning, AbstractSkinning,
+        {name: f"mvcjax.advanced.{kind.__name__}()" for name, kind in (
+            ("blended", BlendedMVCSkinning), ("mvc", MVCSkinning),
+            ("barycentric", BarycentricSkinning))},
+        described="a skinning object, mvcjax.advanced.BlendedMVCSkinning(), "
+                  "mvcjax.advanced.MVCSkinning() or mvcjax.advanced.BarycentricSkinning()",
+        default="mvcjax.advanced.BlendedMVCSkinning()")
 
 
 def _merge_duplicates(index, weight):

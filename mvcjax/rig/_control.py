@@ -16,7 +16,7 @@ import equinox as eqx
 import numpy as np
 import shapely
 
-from ..core import as_points
+from ..core import as_points, checked_option
 from ..geometry import (
     boundary_loops,
     control_polygon,
@@ -178,18 +178,12 @@ class GivenControl(AbstractControl):
 def as_control(control) -> AbstractControl:
     """The control-mesh option of `Rig.build`: an `AbstractControl`, or a TypeError that
     names the object to write (for `"shape"` or a `(vertices, faces)` pair too)."""
-    if isinstance(control, AbstractControl):
-        return control
-    fix = {"shape": "mvcjax.FullSolve()", "paper": "mvcjax.PaperControl()"}.get(
-        control if isinstance(control, str) else None)
-    if control is None:
-        fix = "mvcjax.PaperControl() (the default; leave control out)"
-    elif isinstance(control, (tuple, list)) and len(control) == 2:
-        fix = "mvcjax.GivenControl(vertices, faces)"
-    elif isinstance(control, type) and issubclass(control, AbstractControl):
-        fix = f"mvcjax.{control.__name__}()"
-    raise TypeError(
-        f"control must be a control-mesh object, mvcjax.PaperControl(spacing=..., margin=...), "
-        f"mvcjax.FullSolve() or mvcjax.GivenControl(vertices, faces), got {control!r}"
-        + (f"; write {fix}." if fix else ".")
-    )
+    described = ("a control-mesh object, mvcjax.PaperControl(spacing=..., margin=...), "
+                 "mvcjax.FullSolve() or mvcjax.GivenControl(vertices, faces)")
+    if isinstance(control, (tuple, list)) and len(control) == 2:
+        raise TypeError(f"control must be {described}, got a (vertices, faces) pair; write "
+                        "control=mvcjax.GivenControl(vertices, faces).")
+    return checked_option(
+        "control", control, AbstractControl,
+        {"shape": "mvcjax.FullSolve()", "paper": "mvcjax.PaperControl()"},
+        described=described, default="mvcjax.PaperControl()", module="mvcjax")

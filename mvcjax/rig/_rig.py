@@ -43,12 +43,12 @@ from ..geometry import (
     as_skinning,
     bounding_frame,
     check_representable,
-    cross,
     frame_array,
     interior_edges,
     inverted_count,
     mean_value_coordinates,
     points_to_local,
+    signed_areas,
     thin_outline,
     triangulate_shape,
     vertex_stars,
@@ -244,8 +244,7 @@ def _laplacian_index(loops: list[np.ndarray]) -> np.ndarray:
 def _check_rig(shape_vertices, control_vertices, control_faces, skin_index, skin_weight):
     """What every rig must satisfy, checked once at build time: a failure is a bug, and an
     error now instead of a NaN later."""
-    a, b, c = (control_vertices[control_faces[:, k]] for k in range(3))
-    area = cross(b - a, c - a)
+    area = signed_areas(control_vertices, control_faces)
     problems = []
     flat = area <= 1e-14 * np.abs(area).max(initial=0.0)
     if flat.any():

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ..core import is_real_number, is_whole_number, refuse_removed
+from ..core import checked_option, is_real_number, is_whole_number, refuse_removed
 from ..energy import AbstractFactor, Energy
 from ..geometry import Skinning
 
@@ -220,18 +220,21 @@ def _solver_classes(base: type = AbstractSolver) -> dict[str, type]:
     return found
 
 
+# Other names a solver is known by, each with the object to write.
+_SOLVER_NICKNAMES = {
+    **dict.fromkeys(("newton", "gauss-newton", "gauss_newton", "gn"), "mvcjax.GaussNewton()"),
+    **dict.fromkeys(("levenberg-marquardt", "levenberg_marquardt", "lm"),
+                    "mvcjax.LevenbergMarquardt()"),
+    **dict.fromkeys(("fixed-g", "fixed_g", "local-global", "arap"), "mvcjax.FixedG()"),
+    **dict.fromkeys(("fold-free", "fold_free"), "mvcjax.FoldFree()"),
+}
+
+
 def check_solver(solver, name: str = "solver"):
     """`solver` itself if it is an mvcjax solver object; otherwise a TypeError with the
     spelling that works (a solver's name as a string is a common slip)."""
-    if isinstance(solver, AbstractSolver):
-        return solver
-    if isinstance(solver, str):
-        found = _solver_classes().get(solver)
-        fix = f"{found._MODULE}.{solver}()" if found else "mvcjax.GaussNewton()"
-        raise TypeError(f"{name} must be an mvcjax solver object, not the string {solver!r}; "
-                        f"write {fix}.")
-    if isinstance(solver, type) and issubclass(solver, AbstractSolver):
-        raise TypeError(f"{name} must be an mvcjax solver object, got the class "
-                        f"{solver.__name__}; write {solver._MODULE}.{solver.__name__}().")
-    raise TypeError(f"{name} must be an mvcjax solver such as mvcjax.FixedG() or "
-                    f"mvcjax.GaussNewton(), got {type(solver).__name__}.")
+    return checked_option(
+        name, solver, AbstractSolver,
+        {**_SOLVER_NICKNAMES,
+         **{k: f"{cls._MODULE}.{k}()" for k, cls in _solver_classes().items()}},
+        described="an mvcjax solver object such as mvcjax.FixedG() or mvcjax.GaussNewton()")
