@@ -6,6 +6,7 @@ import re
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optimistix as optx
 import pytest
 
 import mvcjax
@@ -18,15 +19,22 @@ def rig32(horse):
     return mvcjax.Rig.build(horse, mvcjax.datasets.horse_handles(), dtype=jnp.float32)
 
 
-@pytest.mark.parametrize("solver", ["GaussNewton", mvcjax.GaussNewton, 3])
+@pytest.mark.parametrize("solver", ["GaussNewton", mvcjax.GaussNewton, 3,
+                                    optx.GaussNewton(rtol=1e-6, atol=1e-6)],
+                         ids=["string", "class", "number", "optimistix"])
 def test_a_solver_must_be_an_object(horse_rig32, solver):
     t = drag(horse_rig32, np.zeros((5, 2)))
     renderer = mvcjax.Renderer.build(horse_rig32, size=(16, 16))
     picture = np.zeros((16, 16, 4), np.float32)
-    expected = {"GaussNewton": "the string 'GaussNewton' (options are objects); write "
-                               "solver=mvcjax.GaussNewton()",
-                3: "such as mvcjax.FixedG()"}.get(solver, "the class GaussNewton; write "
-                                                          "solver=mvcjax.GaussNewton()")
+    if isinstance(solver, str):
+        expected = ("the string 'GaussNewton' (options are objects); write "
+                    "solver=mvcjax.GaussNewton()")
+    elif isinstance(solver, type):
+        expected = "the class GaussNewton; write solver=mvcjax.GaussNewton()"
+    elif isinstance(solver, optx.GaussNewton):  # another library's solver, named as such
+        expected = "got optimistix's GaussNewton."
+    else:
+        expected = "such as mvcjax.FixedG()"
     for call in (lambda: horse_rig32.deform(t, solver),
                  lambda: mvcjax.deform_frames(horse_rig32, jnp.stack([t, t]), solver=solver),
                  lambda: mvcjax.fit_targets(horse_rig32, renderer, picture, solver=solver)):

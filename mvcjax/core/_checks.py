@@ -159,8 +159,8 @@ def checked_option(name: str, value, kind: type, objects: dict[str, str], *,
         got = f"the class {value.__name__}"
     elif value is None and default is not None:
         fix = f"{default} (the default: leave {name} out)"
-    if len(got) > 80:
-        got = f"a {type(value).__name__}"
+    if len(got) > 80:  # an object of another library's, say: its package and class
+        got = f"{type(value).__module__.split('.')[0]}'s {type(value).__name__}"
     described = described or " or ".join(dict.fromkeys(objects.values()))
     raise TypeError(f"{name} must be {described}, got {got}"
                     + (f"; write {name}={fix}." if fix else "."))
