@@ -225,7 +225,7 @@ _SOLVER_NICKNAMES = {
     **dict.fromkeys(("newton", "gauss-newton", "gauss_newton", "gn"), "mvcjax.GaussNewton()"),
     **dict.fromkeys(("levenberg-marquardt", "levenberg_marquardt", "lm"),
                     "mvcjax.LevenbergMarquardt()"),
-    **dict.fromkeys(("fixed-g", "fixed_g", "local-global", "arap"), "mvcjax.FixedG()"),
+    **dict.fromkeys(("fixed-g", "fixed_g", "local-global"), "mvcjax.FixedG()"),
     **dict.fromkeys(("fold-free", "fold_free"), "mvcjax.FoldFree()"),
 }
 
@@ -233,6 +233,8 @@ _SOLVER_NICKNAMES = {
 def check_solver(solver, name: str = "solver"):
     """`solver` itself if it is an mvcjax solver object; otherwise a TypeError with the
     spelling that works (a solver's name as a string is a common slip)."""
+    if isinstance(solver, AbstractSolver):  # every solve asks: the names only on refusal
+        return solver
     return checked_option(
         name, solver, AbstractSolver,
         {**_SOLVER_NICKNAMES,
